@@ -1,0 +1,187 @@
+"""Render composed Gaussian-splat scenes: one function, a numba CPU backend and a gsplat CUDA backend.
+
+``render(scene, K, T_cam_world, width, height)`` returns colour, z-depth, alpha and instance labels.
+The scene is one :class:`SplatCloud` or a sequence of them (e.g. an environment plus posed objects),
+rendered together without concatenating their splat arrays.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from pegasus_gen import rasterizer_cpu
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.splats import SplatCloud
+
+log = logging.getLogger("pegasus.render")
+
+NEAR_PLANE = 0.01  # metres, as gsplat
+EPS2D = 0.3  # pixels^2 added to the 2D covariance diagonal (anti-aliasing low-pass), as 3DGS
+DEFAULT_ALPHA_MIN = 0.5  # depth is reported where the accumulated alpha reaches this
+
+
+@dataclass
+class RenderOutput:
+    """Images for one camera; H x W, OpenCV pixel grid.
+
+    rgb [H, W, 3] float32 in [0, 1] (background blended in, clamped);
+    depth [H, W] float32 z-depth in metres, sum(w z) / alpha, 0 where alpha < alpha_min;
+    alpha [H, W] float32 accumulated opacity;
+    label [H, W] int32: per pixel the label with the largest accumulated blend weight, -1 where none;
+    label_weights [L, H, W] float32: accumulated blend weight of each requested label (``labels``);
+    labels: the requested labels, in the order of ``label_weights``;
+    backend: "cpu" or "cuda".
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    alpha: np.ndarray
+    label: np.ndarray
+    label_weights: np.ndarray
+    labels: tuple
+    backend: str
+
+    def mask(self, label: int) -> np.ndarray:
+        """[H, W] bool: pixels where ``label`` has the largest blend weight."""
+        return self.label == label
+
+
+def _as_parts(scene) -> list[SplatCloud]:
+    parts = [scene] if isinstance(scene, SplatCloud) else list(scene)
+    if not all(isinstance(p, SplatCloud) for p in parts):
+        raise TypeError("scene must be a SplatCloud or a sequence of SplatClouds")
+    return parts
+
+
+def _check_camera(K, T_cam_world, width, height):
+    K = np.asarray(K, dtype=np.float64)
+    T = np.asarray(T_cam_world, dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K must be a finite 3x3 intrinsic matrix with fx, fy > 0, got {K.tolist()}")
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError("T_cam_world must be a finite 4x4 matrix")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+        raise ValueError("T_cam_world must be a rigid transform (orthonormal rotation, det +1)")
+    if int(width) != width or int(height) != height or width <= 0 or height <= 0:
+        raise ValueError(f"width and height must be positive integers, got {width} x {height}")
+    return K, T, int(width), int(height)
+
+
+def render(scene: SplatCloud | Sequence[SplatCloud], K: np.ndarray, T_cam_world: np.ndarray,
+           width: int, height: int, background=(0.0, 0.0, 0.0), labels: Sequence[int] = (),
+           device: str = "auto", near: float = NEAR_PLANE, far: float = 1e10,
+           alpha_min: float = DEFAULT_ALPHA_MIN) -> RenderOutput:
+    """Render ``scene`` for an OpenCV pinhole camera.
+
+    scene: a SplatCloud or a sequence of them (world frame); K [3, 3] intrinsics (pixels);
+    T_cam_world [4, 4] world->camera; width, height in pixels; background [3] in [0, 1];
+    labels: labels whose per-pixel blend weights to return; device "cpu", "cuda" or "auto"
+    (CUDA when torch sees a GPU and gsplat works, else CPU; the choice is logged and returned).
+    """
+    parts = _as_parts(scene)
+    K, T, width, height = _check_camera(K, T_cam_world, width, height)
+    background = np.asarray(background, dtype=np.float64).reshape(3)
+    requested = tuple(int(v) for v in labels)
+    backend = _choose_backend(device)
+    if backend == "cuda":
+        from pegasus_gen import rasterizer_cuda
+
+        rgb, depth_sum, alpha, label, weights = rasterizer_cuda.render_gsplat(
+            parts, K, T, width, height, background, requested, near, far, EPS2D)
+    else:
+        rgb, depth_sum, alpha, label, weights = _render_cpu(
+            parts, K, T, width, height, background, requested, near, far)
+    depth = np.where(alpha >= alpha_min, depth_sum / np.maximum(alpha, 1e-12), 0.0).astype(np.float32)
+    return RenderOutput(rgb=np.clip(rgb, 0.0, 1.0).astype(np.float32), depth=depth,
+                        alpha=alpha.astype(np.float32), label=label, label_weights=weights,
+                        labels=requested, backend=backend)
+
+
+def _render_cpu(parts, K, T, width, height, background, requested, near, far):
+    R = np.ascontiguousarray(T[:3, :3])
+    t = np.ascontiguousarray(T[:3, 3])
+    cam_center = -R.T @ t
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    chunks = []
+    for part in parts:
+        if len(part) == 0:
+            continue
+        valid, mean2d, conic, depth, box, rgb, opacity = rasterizer_cpu.project(
+            part.means, part.quats_wxyz, part.log_scales, part.opacity_logits, part.sh,
+            R, t, cam_center, fx, fy, cx, cy, width, height, near, far, EPS2D)
+        keep = np.flatnonzero(valid)
+        chunks.append((mean2d[keep], conic[keep], depth[keep], box[keep], rgb[keep], opacity[keep],
+                       part.labels[keep]))
+    if chunks:
+        mean2d, conic, depth, box, rgb, opacity, lab = (np.concatenate(c) for c in zip(*chunks))
+    else:
+        mean2d, conic, depth, box, rgb, opacity = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0),
+                                                   np.zeros((0, 4), np.int32), np.zeros((0, 3)), np.zeros(0))
+        lab = np.zeros(0, np.int32)
+    present, label_idx = np.unique(lab, return_inverse=True)
+    req_idx = np.array([int(np.searchsorted(present, r)) if r in present else -1 for r in requested],
+                       dtype=np.int64)
+    order = np.argsort(depth, kind="stable").astype(np.int64)
+    tiles_x = (width + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
+    tiles_y = (height + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
+    offsets, ids = rasterizer_cpu.bin_to_tiles(order, box, tiles_x, tiles_x * tiles_y)
+    rgb_img, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
+        offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx.astype(np.int32),
+        max(len(present), 1), req_idx, width, height, background)
+    label = np.where(label_dense >= 0, present[np.maximum(label_dense, 0)] if len(present) else -1, -1)
+    return rgb_img, depth_sum, 1.0 - trans, label.astype(np.int32), weights
+
+
+@functools.lru_cache(maxsize=1)
+def cuda_status() -> tuple[bool, str]:
+    """(usable, reason): whether the gsplat CUDA backend works here, with the reason when it does not."""
+    try:
+        import torch
+    except ImportError:
+        return False, "torch is not installed"
+    if not torch.cuda.is_available():
+        return False, "torch sees no CUDA GPU"
+    try:
+        import gsplat  # noqa: F401
+    except Exception as exc:  # gsplat missing or broken
+        return False, f"gsplat is not usable ({exc.__class__.__name__}: {exc}); pip install '.[cuda]'"
+    try:
+        from pegasus_gen import rasterizer_cuda
+
+        rasterizer_cuda.smoke_test()
+    except Exception as exc:  # e.g. its CUDA code failed to compile
+        return False, f"gsplat failed on this GPU ({exc.__class__.__name__}: {exc})"
+    return True, "gsplat on " + torch.cuda.get_device_name(0)
+
+
+def _choose_backend(device: str) -> str:
+    if device == "cpu":
+        return "cpu"
+    if device not in ("cuda", "auto"):
+        raise PegasusError(f"render device must be 'cpu', 'cuda' or 'auto', got {device!r}")
+    ok, reason = cuda_status()
+    if device == "cuda":
+        if not ok:
+            raise PegasusError(f"render device 'cuda' is not available: {reason}")
+        return "cuda"
+    _log_auto_choice(ok, reason)
+    return "cuda" if ok else "cpu"
+
+
+@functools.lru_cache(maxsize=None)
+def _log_auto_choice(ok: bool, reason: str) -> None:
+    if ok:
+        log.info("render device auto: using CUDA (%s)", reason)
+    else:
+        log.info("render device auto: using CPU (numba) because %s", reason)
+
+
+def auto_backend() -> str:
+    """The backend ``device="auto"`` picks on this machine: "cuda" or "cpu"."""
+    return "cuda" if cuda_status()[0] else "cpu"

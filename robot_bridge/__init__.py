@@ -1,0 +1,1 @@
+"""UR5 bridge over ur-rtde and a simulated UR controller (built in a later milestone)."""
