@@ -124,7 +124,7 @@ def _render_cpu(parts, K, T, width, height, background, requested, near, far):
         mean2d, conic, depth, box, rgb, opacity = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0),
                                                    np.zeros((0, 4), np.int32), np.zeros((0, 3)), np.zeros(0))
         lab = np.zeros(0, np.int32)
-    present, label_idx = np.unique(lab, return_inverse=True)
+    present, label_idx = _dense_labels(lab)
     req_idx = np.array([int(np.searchsorted(present, r)) if r in present else -1 for r in requested],
                        dtype=np.int64)
     order = np.argsort(depth, kind="stable").astype(np.int64)
@@ -132,10 +132,25 @@ def _render_cpu(parts, K, T, width, height, background, requested, near, far):
     tiles_y = (height + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
     offsets, ids = rasterizer_cpu.bin_to_tiles(order, box, tiles_x, tiles_x * tiles_y)
     rgb_img, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
-        offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx.astype(np.int32),
+        offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx,
         max(len(present), 1), req_idx, width, height, background)
     label = np.where(label_dense >= 0, present[np.maximum(label_dense, 0)] if len(present) else -1, -1)
     return rgb_img, depth_sum, 1.0 - trans, label.astype(np.int32), weights
+
+
+def _dense_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(present [L] sorted distinct labels, index [M] int32 into present) of labels [M] (int32)."""
+    if len(labels) == 0:
+        return np.zeros(0, np.int32), np.zeros(0, np.int32)
+    lo, hi = int(labels.min()), int(labels.max())
+    if hi - lo > 1 << 16:  # sparse ids: sort-based
+        present, index = np.unique(labels, return_inverse=True)
+        return present.astype(np.int32), index.astype(np.int32)
+    shifted = labels - lo
+    present = np.flatnonzero(np.bincount(shifted, minlength=hi - lo + 1))
+    lookup = np.zeros(hi - lo + 1, np.int32)
+    lookup[present] = np.arange(len(present), dtype=np.int32)
+    return (present + lo).astype(np.int32), lookup[shifted]
 
 
 @functools.lru_cache(maxsize=1)

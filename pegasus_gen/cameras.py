@@ -1,0 +1,36 @@
+"""Camera models and poses (OpenCV pinhole: x right, y down, z forward; K in pixels)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray:
+    """K [3, 3] for a horizontal field of view (degrees), square pixels, principal point at the centre.
+
+    With pixel centres at integer coordinates the image centre is ((W-1)/2, (H-1)/2).
+    """
+    fx = 0.5 * width / np.tan(np.radians(fov_x_deg) / 2)
+    return np.array([[fx, 0.0, (width - 1) / 2], [0.0, fx, (height - 1) / 2], [0.0, 0.0, 1.0]])
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """T_cam_world [4, 4] for a camera at ``eye`` looking at ``target`` (world points, metres).
+
+    The image's up direction is as close to ``up`` as possible (camera -y along ``up``).
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - eye
+    if np.linalg.norm(z) == 0:
+        raise ValueError("look_at: eye and target coincide")
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=np.float64))
+    if np.linalg.norm(x) < 1e-9:  # looking along up: pick any perpendicular
+        x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R_world_cam = np.stack([x, y, z], axis=1)
+    T = np.eye(4)
+    T[:3, :3] = R_world_cam.T
+    T[:3, 3] = -R_world_cam.T @ eye
+    return T

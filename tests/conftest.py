@@ -1,0 +1,24 @@
+import numpy as np
+import pytest
+
+from pegasus_gen.splats import SplatCloud
+
+
+def random_cloud(rng: np.random.Generator, n: int, sh_degree: int = 3, labels=(0,), center=(0, 0, 0),
+                 extent=0.5, scale_range=(0.01, 0.08), opacity_range=(0.2, 0.99)) -> SplatCloud:
+    """n random anisotropic Gaussians with random SH in a cube of half-size ``extent`` around ``center``."""
+    k = (sh_degree + 1) ** 2
+    op = rng.uniform(*opacity_range, n)
+    return SplatCloud(
+        means=np.asarray(center) + rng.uniform(-extent, extent, size=(n, 3)),
+        quats_wxyz=rng.normal(size=(n, 4)),
+        log_scales=np.log(rng.uniform(*scale_range, size=(n, 3))),
+        opacity_logits=np.log(op / (1 - op)),
+        sh=np.concatenate([rng.normal(0, 0.8, size=(n, 1, 3)), rng.normal(0, 0.3, size=(n, k - 1, 3))], axis=1),
+        labels=rng.choice(np.asarray(labels), n),
+    )
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
