@@ -107,7 +107,7 @@ def test_depth_of_a_tilted_plane_follows_the_ray_intersection():
     u, v = np.meshgrid(np.arange(w), np.arange(h))
     rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
     z_true = (normal @ center) / (rays @ normal)  # z-depth where the ray meets the plane
-    assert (out.alpha > 0.99).all()
+    assert (out.alpha > 0.95).all()
     # Alpha-blended depth leans towards the camera on an oblique surface (the nearer of the overlapping
     # splats get more weight): ~2 mm here with 4 mm splats at 1.5 m, far below BOP's 15 mm visibility delta.
     assert np.abs(out.depth - z_true).max() < 4e-3
