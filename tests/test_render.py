@@ -100,7 +100,7 @@ def test_depth_of_a_tilted_plane_follows_the_ray_intersection():
     rng = np.random.default_rng(1)
     normal = np.array([0.0, -np.sin(0.5), -np.cos(0.5)])  # tilted ~29 degrees about x, facing the camera
     center = np.array([0.0, 0.0, 1.5])
-    cloud = dense_plane(rng, center, normal, size=1.6, n=80_000)
+    cloud = dense_plane(rng, center, normal, size=1.6, n=200_000)
     w, h = 320, 240
     K = intrinsics_from_fov(w, h, 40)
     out = render(cloud, K, np.eye(4), w, h, device="cpu")
