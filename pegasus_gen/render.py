@@ -89,68 +89,72 @@ def render(scene: SplatCloud | Sequence[SplatCloud], K: np.ndarray, T_cam_world:
     background = np.asarray(background, dtype=np.float64).reshape(3)
     requested = tuple(int(v) for v in labels)
     backend = _choose_backend(device)
+    present, label_index = _dense_labels([p.labels for p in parts])
+    requested_index = [int(np.searchsorted(present, r)) if r in present else -1 for r in requested]
+    n_labels = max(len(present), 1)
     if backend == "cuda":
         from pegasus_gen import rasterizer_cuda
 
-        rgb, depth_sum, alpha, label, weights = rasterizer_cuda.render_gsplat(
-            parts, K, T, width, height, background, requested, near, far, EPS2D)
+        rgb, depth_sum, alpha, label_dense, weights = rasterizer_cuda.render_gsplat(
+            parts, label_index, n_labels, requested_index, K, T, width, height, background, near, far, EPS2D)
     else:
-        rgb, depth_sum, alpha, label, weights = _render_cpu(
-            parts, K, T, width, height, background, requested, near, far)
+        rgb, depth_sum, alpha, label_dense, weights = _render_cpu(
+            parts, label_index, n_labels, requested_index, K, T, width, height, background, near, far)
+    label = np.where(label_dense >= 0, present[np.maximum(label_dense, 0)] if len(present) else -1, -1)
     depth = np.where(alpha >= alpha_min, depth_sum / np.maximum(alpha, 1e-12), 0.0).astype(np.float32)
     return RenderOutput(rgb=np.clip(rgb, 0.0, 1.0).astype(np.float32), depth=depth,
-                        alpha=alpha.astype(np.float32), label=label, label_weights=weights,
+                        alpha=alpha.astype(np.float32), label=label.astype(np.int32), label_weights=weights,
                         labels=requested, backend=backend)
 
 
-def _render_cpu(parts, K, T, width, height, background, requested, near, far):
+def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, height, background, near, far):
+    """Numba backend; returns (rgb, depth_sum, alpha, label_dense, weights) like the CUDA backend."""
     R = np.ascontiguousarray(T[:3, :3])
     t = np.ascontiguousarray(T[:3, 3])
     cam_center = -R.T @ t
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     chunks = []
-    for part in parts:
+    for part, idx in zip(parts, label_index):
         if len(part) == 0:
             continue
         valid, mean2d, conic, depth, box, rgb, opacity = rasterizer_cpu.project(
             part.means, part.quats_wxyz, part.log_scales, part.opacity_logits, part.sh,
             R, t, cam_center, fx, fy, cx, cy, width, height, near, far, EPS2D)
         keep = np.flatnonzero(valid)
-        chunks.append((mean2d[keep], conic[keep], depth[keep], box[keep], rgb[keep], opacity[keep],
-                       part.labels[keep]))
-    if chunks:
-        mean2d, conic, depth, box, rgb, opacity, lab = (np.concatenate(c) for c in zip(*chunks))
-    else:
-        mean2d, conic, depth, box, rgb, opacity = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0),
-                                                   np.zeros((0, 4), np.int32), np.zeros((0, 3)), np.zeros(0))
-        lab = np.zeros(0, np.int32)
-    present, label_idx = _dense_labels(lab)
-    req_idx = np.array([int(np.searchsorted(present, r)) if r in present else -1 for r in requested],
-                       dtype=np.int64)
+        chunks.append((mean2d[keep], conic[keep], depth[keep], box[keep], rgb[keep], opacity[keep], idx[keep]))
+    if not chunks:
+        chunks = [(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 4), np.int32), np.zeros((0, 3)),
+                   np.zeros(0), np.zeros(0, np.int32))]
+    mean2d, conic, depth, box, rgb, opacity, lab = (np.concatenate(c) for c in zip(*chunks))
     order = np.argsort(depth, kind="stable").astype(np.int64)
     tiles_x = (width + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
     tiles_y = (height + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
     offsets, ids = rasterizer_cpu.bin_to_tiles(order, box, tiles_x, tiles_x * tiles_y)
     rgb_img, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
-        offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx,
-        max(len(present), 1), req_idx, width, height, background)
-    label = np.where(label_dense >= 0, present[np.maximum(label_dense, 0)] if len(present) else -1, -1)
-    return rgb_img, depth_sum, 1.0 - trans, label.astype(np.int32), weights
+        offsets, ids, mean2d, conic, depth, box, rgb, opacity, lab, n_labels,
+        np.asarray(requested_index, dtype=np.int64), width, height, background)
+    return rgb_img, depth_sum, 1.0 - trans, label_dense, weights
 
 
-def _dense_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(present [L] sorted distinct labels, index [M] int32 into present) of labels [M] (int32)."""
-    if len(labels) == 0:
-        return np.zeros(0, np.int32), np.zeros(0, np.int32)
-    lo, hi = int(labels.min()), int(labels.max())
+def _dense_labels(labels_per_part: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Map labels to dense indices: (present [L] sorted distinct labels, per part [N_i] int32 index)."""
+    mins = [int(lab.min()) for lab in labels_per_part if len(lab)]
+    if not mins:
+        return np.zeros(0, np.int32), [np.zeros(0, np.int32) for _ in labels_per_part]
+    lo, hi = min(mins), max(int(lab.max()) for lab in labels_per_part if len(lab))
     if hi - lo > 1 << 16:  # sparse ids: sort-based
-        present, index = np.unique(labels, return_inverse=True)
-        return present.astype(np.int32), index.astype(np.int32)
-    shifted = labels - lo
-    present = np.flatnonzero(np.bincount(shifted, minlength=hi - lo + 1))
+        present = np.unique(np.concatenate(labels_per_part)).astype(np.int32)
+        return present, [np.searchsorted(present, lab).astype(np.int32) for lab in labels_per_part]
+    single = [len(lab) > 0 and lab.min() == lab.max() for lab in labels_per_part]  # the usual case
+    seen = np.zeros(hi - lo + 1, dtype=bool)
+    for lab, one in zip(labels_per_part, single):
+        seen[(lab[:1] if one else lab) - lo] = True
+    present = np.flatnonzero(seen)
     lookup = np.zeros(hi - lo + 1, np.int32)
     lookup[present] = np.arange(len(present), dtype=np.int32)
-    return (present + lo).astype(np.int32), lookup[shifted]
+    index = [np.full(len(lab), lookup[lab[0] - lo], np.int32) if one else lookup[lab - lo]
+             for lab, one in zip(labels_per_part, single)]
+    return (present + lo).astype(np.int32), index
 
 
 @functools.lru_cache(maxsize=1)
