@@ -34,3 +34,19 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     T[:3, :3] = R_world_cam.T
     T[:3, 3] = -R_world_cam.T @ eye
     return T
+
+
+def frame_points(points: np.ndarray, K: np.ndarray, width: int, height: int, azimuth_deg: float = -60.0,
+                 elevation_deg: float = 35.0, margin: float = 1.15) -> np.ndarray:
+    """T_cam_world of a camera on a sphere around ``points`` [N, 3] that keeps their bulk in view.
+
+    Uses the 2nd..98th percentile box so stray splats do not shrink the view.
+    """
+    lo, hi = np.percentile(points, [2, 98], axis=0)
+    center = (lo + hi) / 2
+    radius = max(np.linalg.norm(hi - lo) / 2, 1e-3)
+    half_fov = min(np.arctan(0.5 * width / K[0, 0]), np.arctan(0.5 * height / K[1, 1]))
+    distance = margin * radius / np.sin(half_fov)
+    az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
+    eye = center + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    return look_at(eye, center)

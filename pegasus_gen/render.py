@@ -160,6 +160,10 @@ def _dense_labels(labels_per_part: list[np.ndarray]) -> tuple[np.ndarray, list[n
 @functools.lru_cache(maxsize=1)
 def cuda_status() -> tuple[bool, str]:
     """(usable, reason): whether the gsplat CUDA backend works here, with the reason when it does not."""
+    import importlib.util
+
+    if importlib.util.find_spec("gsplat") is None:
+        return False, "gsplat is not installed (pip install '.[cuda]' on a CUDA machine)"
     try:
         import torch
     except ImportError:
