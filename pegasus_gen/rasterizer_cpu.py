@@ -26,23 +26,17 @@ TILE = 16
 
 @numba.njit(parallel=True, cache=True)
 def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, fy, cx, cy,
-            width, height, near, far, eps2d):
-    """Project splats into the image.
+            width, height, near, far, eps2d, valid, mean2d, conic, depth, box, rgb, opacity):
+    """Project splats into the image, writing into the given output arrays (all with N rows).
 
-    means [N,3], quats [N,4] wxyz, log_scales [N,3], opacity_logits [N], sh [N,K,3] (float32, world frame);
-    R [3,3], t [3] world->camera; cam_center [3] world; fx, fy, cx, cy OpenCV intrinsics (pixels).
-    Returns (valid [N] bool, mean2d [N,2], conic [N,3] (A, B, C of the inverse 2D covariance),
-    depth [N] camera z (m), box [N,4] int32 inclusive pixel box (x0, x1, y0, y1), rgb [N,3], opacity [N]).
+    Inputs: means [N,3], quats [N,4] wxyz, log_scales [N,3], opacity_logits [N], sh [N,K,3] (float32,
+    world frame); R [3,3], t [3] world->camera; cam_center [3] world; fx, fy, cx, cy OpenCV intrinsics.
+    Outputs: valid [N] bool (False: culled, other outputs undefined), mean2d [N,2] pixels,
+    conic [N,3] (A, B, C of the inverse 2D covariance), depth [N] camera z (m),
+    box [N,4] int32 inclusive pixel box (x0, x1, y0, y1), rgb [N,3], opacity [N].
     """
     n = means.shape[0]
     k = sh.shape[1]
-    valid = np.zeros(n, dtype=np.bool_)
-    mean2d = np.empty((n, 2), dtype=np.float64)
-    conic = np.empty((n, 3), dtype=np.float64)
-    depth = np.empty(n, dtype=np.float64)
-    box = np.empty((n, 4), dtype=np.int32)
-    rgb = np.empty((n, 3), dtype=np.float64)
-    opacity = np.empty(n, dtype=np.float64)
     # gsplat clamps the projected direction to the frustum widened by 30% (its pixel centres sit at +0.5).
     tan_fovx = 0.5 * width / fx
     tan_fovy = 0.5 * height / fy
@@ -52,6 +46,7 @@ def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, 
     lim_y_neg = (cy + 0.5) / fy + 0.3 * tan_fovy
     log_alpha_thr = math.log(ALPHA_THRESHOLD)
     for i in numba.prange(n):
+        valid[i] = False
         mx, my, mz = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
         x = R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz + t[0]
         y = R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + t[1]
@@ -153,7 +148,36 @@ def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, 
         box[i, 2] = y0
         box[i, 3] = y1
         opacity[i] = o
-    return valid, mean2d, conic, depth, box, rgb, opacity
+
+
+@numba.njit(cache=True)
+def sort_by_depth(depth, keep):
+    """``keep`` [M] splat indices reordered front to back (stable LSD radix sort on float32 depth bits).
+
+    depth [N] must be positive where kept (positive floats order like their bit patterns).
+    """
+    m = keep.shape[0]
+    key_f = np.empty(m, dtype=np.float32)
+    for j in range(m):
+        key_f[j] = depth[keep[j]]
+    keys = key_f.view(np.uint32)
+    idx = keep.copy()
+    tmp_keys = np.empty_like(keys)
+    tmp_idx = np.empty_like(idx)
+    for shift in (0, 11, 22):
+        counts = np.zeros(2049, dtype=np.int64)
+        for j in range(m):
+            counts[((keys[j] >> shift) & 2047) + 1] += 1
+        for b in range(2048):
+            counts[b + 1] += counts[b]
+        for j in range(m):
+            b = (keys[j] >> shift) & 2047
+            tmp_keys[counts[b]] = keys[j]
+            tmp_idx[counts[b]] = idx[j]
+            counts[b] += 1
+        keys, tmp_keys = tmp_keys, keys
+        idx, tmp_idx = tmp_idx, idx
+    return idx
 
 
 @numba.njit(cache=True)

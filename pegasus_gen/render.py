@@ -113,20 +113,22 @@ def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, heig
     t = np.ascontiguousarray(T[:3, 3])
     cam_center = -R.T @ t
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    chunks = []
-    for part, idx in zip(parts, label_index):
-        if len(part) == 0:
-            continue
-        valid, mean2d, conic, depth, box, rgb, opacity = rasterizer_cpu.project(
-            part.means, part.quats_wxyz, part.log_scales, part.opacity_logits, part.sh,
-            R, t, cam_center, fx, fy, cx, cy, width, height, near, far, EPS2D)
-        keep = np.flatnonzero(valid)
-        chunks.append((mean2d[keep], conic[keep], depth[keep], box[keep], rgb[keep], opacity[keep], idx[keep]))
-    if not chunks:
-        chunks = [(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 4), np.int32), np.zeros((0, 3)),
-                   np.zeros(0), np.zeros(0, np.int32))]
-    mean2d, conic, depth, box, rgb, opacity, lab = (np.concatenate(c) for c in zip(*chunks))
-    order = np.argsort(depth, kind="stable").astype(np.int64)
+    n = sum(len(p) for p in parts)
+    valid = np.empty(n, dtype=bool)
+    mean2d, conic, depth = np.empty((n, 2)), np.empty((n, 3)), np.empty(n)
+    box, rgb, opacity = np.empty((n, 4), np.int32), np.empty((n, 3)), np.empty(n)
+    start = 0
+    for part in parts:
+        end = start + len(part)
+        if end > start:
+            rasterizer_cpu.project(
+                part.means, part.quats_wxyz, part.log_scales, part.opacity_logits, part.sh,
+                R, t, cam_center, fx, fy, cx, cy, width, height, near, far, EPS2D,
+                valid[start:end], mean2d[start:end], conic[start:end], depth[start:end], box[start:end],
+                rgb[start:end], opacity[start:end])
+        start = end
+    lab = np.concatenate(label_index) if label_index else np.zeros(0, np.int32)
+    order = rasterizer_cpu.sort_by_depth(depth, np.flatnonzero(valid))
     tiles_x = (width + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
     tiles_y = (height + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
     offsets, ids = rasterizer_cpu.bin_to_tiles(order, box, tiles_x, tiles_x * tiles_y)

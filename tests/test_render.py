@@ -178,3 +178,14 @@ def test_without_a_gpu_cuda_is_refused_and_auto_says_it_uses_cpu(caplog):
     with caplog.at_level(logging.INFO, logger="pegasus.render"):
         out = render(cloud, K, T, w, h, device="auto")
     assert out.backend == "cpu" and "using CPU" in caplog.text
+
+
+def test_depth_sort_orders_front_to_back_like_a_stable_argsort():
+    from pegasus_gen.rasterizer_cpu import sort_by_depth
+
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.01, 50.0, 100_000)
+    depth[::7] = 3.25  # ties keep index order
+    keep = np.flatnonzero(rng.uniform(size=depth.size) < 0.8)
+    expected = keep[np.argsort(depth[keep].astype(np.float32), kind="stable")]
+    assert np.array_equal(sort_by_depth(depth, keep), expected)
