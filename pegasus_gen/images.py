@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.files import write_atomic
 
 
 def rgb_to_uint8(rgb: np.ndarray) -> np.ndarray:
@@ -45,17 +45,11 @@ def colorize_labels(label: np.ndarray) -> np.ndarray:
 def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write an RGB (H, W, 3) or single-channel uint8/uint16 image; the file appears atomically."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     data = image[..., ::-1] if image.ndim == 3 else image
-    ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(data))
+    try:
+        ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(data))
+    except cv2.error:
+        ok = False
     if not ok:
         raise PegasusError(f"{path}: cannot encode an image with this extension")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_atomic(path, lambda f: f.write(buf.tobytes()))

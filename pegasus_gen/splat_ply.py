@@ -10,13 +10,13 @@ Every problem raises :class:`SplatFileError` naming the file and what is wrong.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from pegasus_gen import sh as shlib
 from pegasus_gen.errors import SplatFileError
+from pegasus_gen.files import write_atomic
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -203,14 +203,9 @@ def write_ply(path: str | os.PathLike, cloud, include_labels: bool = False) -> P
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(cloud)}"]
     header += [f"property {'int' if t == '<i4' else 'float'} {p}" for p, t in fields]
     header.append("end_header")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(("\n".join(header) + "\n").encode("ascii"))
-            f.write(table.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+
+    def write(f):
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(table.tobytes())
+
+    return write_atomic(path, write)
