@@ -182,23 +182,28 @@ def sort_by_depth(depth, keep):
 
 @numba.njit(cache=True)
 def bin_to_tiles(order, box, tiles_x, n_tiles):
-    """Tile lists. order [M] splat indices front to back; box [M,4] pixel boxes.
+    """Tile lists. order [M] splat indices front to back; box [N,4] pixel boxes.
 
     Returns (offsets [n_tiles+1], ids [pairs]): tile t holds ids[offsets[t]:offsets[t+1]], front to back.
     """
+    m = order.shape[0]
+    tiles = np.empty((m, 4), dtype=np.int32)  # tile box per sorted splat: one gather, then sequential passes
     counts = np.zeros(n_tiles + 1, dtype=np.int64)
-    for g in order:
-        for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
-            for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+    for j in range(m):
+        g = order[j]
+        tx0, tx1, ty0, ty1 = box[g, 0] // TILE, box[g, 1] // TILE, box[g, 2] // TILE, box[g, 3] // TILE
+        tiles[j, 0], tiles[j, 1], tiles[j, 2], tiles[j, 3] = tx0, tx1, ty0, ty1
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
                 counts[ty * tiles_x + tx + 1] += 1
     offsets = np.cumsum(counts)
     cursor = offsets[:-1].copy()
     ids = np.empty(offsets[-1], dtype=np.int32)
-    for g in order:
-        for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
-            for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+    for j in range(m):
+        for ty in range(tiles[j, 2], tiles[j, 3] + 1):
+            for tx in range(tiles[j, 0], tiles[j, 1] + 1):
                 tile = ty * tiles_x + tx
-                ids[cursor[tile]] = g
+                ids[cursor[tile]] = order[j]
                 cursor[tile] += 1
     return offsets, ids
 
@@ -257,9 +262,9 @@ def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx, 
                 if disc < 0.0:
                     continue
                 sq = math.sqrt(disc)
-                # dx = mx - x within [(-B dy - sq)/A, (-B dy + sq)/A]; one pixel of margin, exact test below
-                xa = max(gx0, int(math.floor(mx - (-cb * dy + sq) / ca)) - 1)
-                xb = min(gx1, int(math.ceil(mx - (-cb * dy - sq) / ca)) + 1)
+                # dx = mx - x within [(-B dy - sq)/A, (-B dy + sq)/A] (+ a rounding margin; exact test below)
+                xa = max(gx0, int(math.ceil(mx - (-cb * dy + sq) / ca - 1e-6)))
+                xb = min(gx1, int(math.floor(mx - (-cb * dy - sq) / ca + 1e-6)))
                 ly = y - py0
                 for x in range(xa, xb + 1):
                     lx = x - px0
