@@ -22,6 +22,7 @@ ALPHA_MAX = 0.999  # per-splat alpha clamp (gsplat; INRIA uses 0.99)
 T_MIN = 1e-4  # a pixel stops when its transmittance would fall to this
 EXTEND_MAX = 3.33  # pixel-box half size in standard deviations, at most
 TILE = 16
+PROJECT_CHUNK = 4096  # splats per parallel work item in project()
 
 
 @numba.njit(parallel=True, cache=True)
@@ -45,109 +46,111 @@ def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, 
     lim_y_pos = (height - cy - 0.5) / fy + 0.3 * tan_fovy
     lim_y_neg = (cy + 0.5) / fy + 0.3 * tan_fovy
     log_alpha_thr = math.log(ALPHA_THRESHOLD)
-    for i in numba.prange(n):
-        valid[i] = False
-        mx, my, mz = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
-        x = R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz + t[0]
-        y = R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + t[1]
-        z = R[2, 0] * mx + R[2, 1] * my + R[2, 2] * mz + t[2]
-        if z <= near or z >= far:
-            continue
-        o = 1.0 / (1.0 + math.exp(-float(opacity_logits[i])))
-        if o < ALPHA_THRESHOLD:
-            continue
-        # world covariance  M M^T with M = Rq diag(s)
-        qw, qx, qy, qz = float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3])
-        qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        if qn == 0.0:
-            continue
-        qw /= qn
-        qx /= qn
-        qy /= qn
-        qz /= qn
-        s0 = math.exp(float(log_scales[i, 0]))
-        s1 = math.exp(float(log_scales[i, 1]))
-        s2 = math.exp(float(log_scales[i, 2]))
-        m00 = (1 - 2 * (qy * qy + qz * qz)) * s0
-        m01 = 2 * (qx * qy - qw * qz) * s1
-        m02 = 2 * (qx * qz + qw * qy) * s2
-        m10 = 2 * (qx * qy + qw * qz) * s0
-        m11 = (1 - 2 * (qx * qx + qz * qz)) * s1
-        m12 = 2 * (qy * qz - qw * qx) * s2
-        m20 = 2 * (qx * qz - qw * qy) * s0
-        m21 = 2 * (qy * qz + qw * qx) * s1
-        m22 = (1 - 2 * (qx * qx + qy * qy)) * s2
-        # camera-frame factor  C = R M  (covariance R M M^T R^T)
-        c00 = R[0, 0] * m00 + R[0, 1] * m10 + R[0, 2] * m20
-        c01 = R[0, 0] * m01 + R[0, 1] * m11 + R[0, 2] * m21
-        c02 = R[0, 0] * m02 + R[0, 1] * m12 + R[0, 2] * m22
-        c10 = R[1, 0] * m00 + R[1, 1] * m10 + R[1, 2] * m20
-        c11 = R[1, 0] * m01 + R[1, 1] * m11 + R[1, 2] * m21
-        c12 = R[1, 0] * m02 + R[1, 1] * m12 + R[1, 2] * m22
-        c20 = R[2, 0] * m00 + R[2, 1] * m10 + R[2, 2] * m20
-        c21 = R[2, 0] * m01 + R[2, 1] * m11 + R[2, 2] * m21
-        c22 = R[2, 0] * m02 + R[2, 1] * m12 + R[2, 2] * m22
-        # EWA: J (2x3) at the clamped direction; the 2D covariance is (J C)(J C)^T + eps2d I
-        rz = 1.0 / z
-        tx = z * min(lim_x_pos, max(-lim_x_neg, x * rz))
-        ty = z * min(lim_y_pos, max(-lim_y_neg, y * rz))
-        j00 = fx * rz
-        j02 = -fx * tx * rz * rz
-        j11 = fy * rz
-        j12 = -fy * ty * rz * rz
-        u0 = j00 * c00 + j02 * c20
-        u1 = j00 * c01 + j02 * c21
-        u2 = j00 * c02 + j02 * c22
-        v0 = j11 * c10 + j12 * c20
-        v1 = j11 * c11 + j12 * c21
-        v2 = j11 * c12 + j12 * c22
-        a = u0 * u0 + u1 * u1 + u2 * u2 + eps2d
-        b = u0 * v0 + u1 * v1 + u2 * v2
-        c = v0 * v0 + v1 * v1 + v2 * v2 + eps2d
-        det = a * c - b * b
-        if det <= 0.0:
-            continue
-        px = fx * x * rz + cx
-        py = fy * y * rz + cy
-        extend = min(EXTEND_MAX, math.sqrt(2.0 * (math.log(o) - log_alpha_thr)))
-        rx = math.ceil(extend * math.sqrt(a))
-        ry = math.ceil(extend * math.sqrt(c))
-        if rx <= 0.0 and ry <= 0.0:
-            continue
-        x0 = max(0, int(math.ceil(px - rx)))
-        x1 = min(width - 1, int(math.floor(px + rx)))
-        y0 = max(0, int(math.ceil(py - ry)))
-        y1 = min(height - 1, int(math.floor(py + ry)))
-        if x0 > x1 or y0 > y1:
-            continue
-        # view-dependent colour along the camera->splat direction (world frame)
-        dx = mx - cam_center[0]
-        dy = my - cam_center[1]
-        dz = mz - cam_center[2]
-        dn = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if dn > 0.0:
-            dx /= dn
-            dy /= dn
-            dz /= dn
-        bvals = np.empty(16, dtype=np.float64)
-        basis_into(dx, dy, dz, k, bvals)
-        for ch in range(3):
-            acc = 0.0
-            for j in range(k):
-                acc += bvals[j] * sh[i, j, ch]
-            rgb[i, ch] = max(acc + 0.5, 0.0)
-        valid[i] = True
-        mean2d[i, 0] = px
-        mean2d[i, 1] = py
-        conic[i, 0] = c / det
-        conic[i, 1] = -b / det
-        conic[i, 2] = a / det
-        depth[i] = z
-        box[i, 0] = x0
-        box[i, 1] = x1
-        box[i, 2] = y0
-        box[i, 3] = y1
-        opacity[i] = o
+    n_chunks = (n + PROJECT_CHUNK - 1) // PROJECT_CHUNK
+    for chunk in numba.prange(n_chunks):
+        bvals = np.empty(16, dtype=np.float64)  # SH basis scratch, one per chunk
+        for i in range(chunk * PROJECT_CHUNK, min(n, (chunk + 1) * PROJECT_CHUNK)):
+            valid[i] = False
+            mx, my, mz = float(means[i, 0]), float(means[i, 1]), float(means[i, 2])
+            x = R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz + t[0]
+            y = R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz + t[1]
+            z = R[2, 0] * mx + R[2, 1] * my + R[2, 2] * mz + t[2]
+            if z <= near or z >= far:
+                continue
+            o = 1.0 / (1.0 + math.exp(-float(opacity_logits[i])))
+            if o < ALPHA_THRESHOLD:
+                continue
+            # world covariance  M M^T with M = Rq diag(s)
+            qw, qx, qy, qz = float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3])
+            qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            if qn == 0.0:
+                continue
+            qw /= qn
+            qx /= qn
+            qy /= qn
+            qz /= qn
+            s0 = math.exp(float(log_scales[i, 0]))
+            s1 = math.exp(float(log_scales[i, 1]))
+            s2 = math.exp(float(log_scales[i, 2]))
+            m00 = (1 - 2 * (qy * qy + qz * qz)) * s0
+            m01 = 2 * (qx * qy - qw * qz) * s1
+            m02 = 2 * (qx * qz + qw * qy) * s2
+            m10 = 2 * (qx * qy + qw * qz) * s0
+            m11 = (1 - 2 * (qx * qx + qz * qz)) * s1
+            m12 = 2 * (qy * qz - qw * qx) * s2
+            m20 = 2 * (qx * qz - qw * qy) * s0
+            m21 = 2 * (qy * qz + qw * qx) * s1
+            m22 = (1 - 2 * (qx * qx + qy * qy)) * s2
+            # camera-frame factor  C = R M  (covariance R M M^T R^T)
+            c00 = R[0, 0] * m00 + R[0, 1] * m10 + R[0, 2] * m20
+            c01 = R[0, 0] * m01 + R[0, 1] * m11 + R[0, 2] * m21
+            c02 = R[0, 0] * m02 + R[0, 1] * m12 + R[0, 2] * m22
+            c10 = R[1, 0] * m00 + R[1, 1] * m10 + R[1, 2] * m20
+            c11 = R[1, 0] * m01 + R[1, 1] * m11 + R[1, 2] * m21
+            c12 = R[1, 0] * m02 + R[1, 1] * m12 + R[1, 2] * m22
+            c20 = R[2, 0] * m00 + R[2, 1] * m10 + R[2, 2] * m20
+            c21 = R[2, 0] * m01 + R[2, 1] * m11 + R[2, 2] * m21
+            c22 = R[2, 0] * m02 + R[2, 1] * m12 + R[2, 2] * m22
+            # EWA: J (2x3) at the clamped direction; the 2D covariance is (J C)(J C)^T + eps2d I
+            rz = 1.0 / z
+            tx = z * min(lim_x_pos, max(-lim_x_neg, x * rz))
+            ty = z * min(lim_y_pos, max(-lim_y_neg, y * rz))
+            j00 = fx * rz
+            j02 = -fx * tx * rz * rz
+            j11 = fy * rz
+            j12 = -fy * ty * rz * rz
+            u0 = j00 * c00 + j02 * c20
+            u1 = j00 * c01 + j02 * c21
+            u2 = j00 * c02 + j02 * c22
+            v0 = j11 * c10 + j12 * c20
+            v1 = j11 * c11 + j12 * c21
+            v2 = j11 * c12 + j12 * c22
+            a = u0 * u0 + u1 * u1 + u2 * u2 + eps2d
+            b = u0 * v0 + u1 * v1 + u2 * v2
+            c = v0 * v0 + v1 * v1 + v2 * v2 + eps2d
+            det = a * c - b * b
+            if det <= 0.0:
+                continue
+            px = fx * x * rz + cx
+            py = fy * y * rz + cy
+            extend = min(EXTEND_MAX, math.sqrt(2.0 * (math.log(o) - log_alpha_thr)))
+            rx = math.ceil(extend * math.sqrt(a))
+            ry = math.ceil(extend * math.sqrt(c))
+            if rx <= 0.0 and ry <= 0.0:
+                continue
+            x0 = max(0, int(math.ceil(px - rx)))
+            x1 = min(width - 1, int(math.floor(px + rx)))
+            y0 = max(0, int(math.ceil(py - ry)))
+            y1 = min(height - 1, int(math.floor(py + ry)))
+            if x0 > x1 or y0 > y1:
+                continue
+            # view-dependent colour along the camera->splat direction (world frame)
+            dx = mx - cam_center[0]
+            dy = my - cam_center[1]
+            dz = mz - cam_center[2]
+            dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if dn > 0.0:
+                dx /= dn
+                dy /= dn
+                dz /= dn
+            basis_into(dx, dy, dz, k, bvals)
+            for ch in range(3):
+                acc = 0.0
+                for j in range(k):
+                    acc += bvals[j] * sh[i, j, ch]
+                rgb[i, ch] = max(acc + 0.5, 0.0)
+            valid[i] = True
+            mean2d[i, 0] = px
+            mean2d[i, 1] = py
+            conic[i, 0] = c / det
+            conic[i, 1] = -b / det
+            conic[i, 2] = a / det
+            depth[i] = z
+            box[i, 0] = x0
+            box[i, 1] = x1
+            box[i, 2] = y0
+            box[i, 3] = y1
+            opacity[i] = o
 
 
 @numba.njit(cache=True)
