@@ -32,19 +32,19 @@ def _camera_from_args(args, points):
     return K, T
 
 
-def _write_render_outputs(out_dir: Path, out, stem: str = "") -> list[Path]:
+def _write_render_outputs(out_dir: Path, out) -> list[Path]:
     from pegasus_gen import images
 
     depth_mm = np.clip(np.round(out.depth * 1000.0), 0, 65535).astype(np.uint16)
     written = [
-        images.write_image(out_dir / f"{stem}rgb.png", images.rgb_to_uint8(out.rgb)),
-        images.write_image(out_dir / f"{stem}depth_mm.png", depth_mm),
-        images.write_image(out_dir / f"{stem}depth_vis.png", images.colorize_depth(out.depth)),
-        images.write_image(out_dir / f"{stem}labels.png", images.colorize_labels(out.label)),
+        images.write_image(out_dir / "rgb.png", images.rgb_to_uint8(out.rgb)),
+        images.write_image(out_dir / "depth_mm.png", depth_mm),
+        images.write_image(out_dir / "depth_vis.png", images.colorize_depth(out.depth)),
+        images.write_image(out_dir / "labels.png", images.colorize_labels(out.label)),
     ]
     sheet = np.concatenate([images.rgb_to_uint8(out.rgb), images.colorize_depth(out.depth),
                             images.colorize_labels(out.label)], axis=1)
-    written.append(images.write_image(out_dir / f"{stem}overview.png", sheet))
+    written.append(images.write_image(out_dir / "overview.png", sheet))
     return written
 
 

@@ -206,7 +206,3 @@ def _log_auto_choice(ok: bool, reason: str) -> None:
     else:
         log.info("render device auto: using CPU (numba) because %s", reason)
 
-
-def auto_backend() -> str:
-    """The backend ``device="auto"`` picks on this machine: "cuda" or "cpu"."""
-    return "cuda" if cuda_status()[0] else "cpu"

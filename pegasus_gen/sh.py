@@ -90,11 +90,6 @@ def evaluate(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.einsum("nk,nkc->nc", b, sh.astype(np.float64))
 
 
-def rgb_from_sh(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Displayed colour max(eval + 0.5, 0) as 3DGS renderers compute it. Returns [N, 3] float64."""
-    return np.maximum(evaluate(sh, dirs) + 0.5, 0.0)
-
-
 def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
     """DC coefficient for a view-independent colour: (rgb - 0.5) / C0. rgb: [..., 3] in [0, 1]."""
     return (np.asarray(rgb, dtype=np.float64) - 0.5) / C0

@@ -15,13 +15,11 @@ Placement composes absolute poses: an object cloud stored in its object frame is
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from pegasus_gen import sh as shlib
-from pegasus_gen.errors import PegasusError
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,4 +187,4 @@ def quat_wxyz_to_rotation(q: np.ndarray) -> np.ndarray:
 from pegasus_gen.splat_ply import read_ply, write_ply  # noqa: E402  (re-exported: pegasus_gen.splats.read_ply)
 
 __all__ = ["SplatCloud", "concatenate", "read_ply", "write_ply", "quat_multiply_wxyz",
-           "rotation_to_quat_wxyz", "quat_wxyz_to_rotation", "PegasusError"]
+           "rotation_to_quat_wxyz", "quat_wxyz_to_rotation"]
