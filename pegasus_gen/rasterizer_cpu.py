@@ -27,14 +27,14 @@ PROJECT_CHUNK = 4096  # splats per parallel work item in project()
 
 @numba.njit(parallel=True, cache=True)
 def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, fy, cx, cy,
-            width, height, near, far, eps2d, valid, mean2d, conic, depth, box, rgb, opacity):
+            width, height, near, far, eps2d, valid, mean2d, conic, depth, box, rgb, log_opacity):
     """Project splats into the image, writing into the given output arrays (all with N rows).
 
     Inputs: means [N,3], quats [N,4] wxyz, log_scales [N,3], opacity_logits [N], sh [N,K,3] (float32,
     world frame); R [3,3], t [3] world->camera; cam_center [3] world; fx, fy, cx, cy OpenCV intrinsics.
     Outputs: valid [N] bool (False: culled, other outputs undefined), mean2d [N,2] pixels,
     conic [N,3] (A, B, C of the inverse 2D covariance), depth [N] camera z (m),
-    box [N,4] int32 inclusive pixel box (x0, x1, y0, y1), rgb [N,3], opacity [N].
+    box [N,4] int32 inclusive pixel box (x0, x1, y0, y1), rgb [N,3], log_opacity [N] (natural log).
     """
     n = means.shape[0]
     k = sh.shape[1]
@@ -150,7 +150,7 @@ def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, 
             box[i, 1] = x1
             box[i, 2] = y0
             box[i, 3] = y1
-            opacity[i] = o
+            log_opacity[i] = math.log(o)
 
 
 @numba.njit(cache=True)
@@ -212,7 +212,7 @@ def bin_to_tiles(order, box, tiles_x, n_tiles):
 
 
 @numba.njit(parallel=True, cache=True)
-def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx, n_labels, requested,
+def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, log_opacity, label_idx, n_labels, requested,
               width, height, background):
     """Blend splats front to back per pixel.
 
@@ -251,14 +251,14 @@ def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx, 
             cc = conic[g, 2]
             mx = mean2d[g, 0]
             my = mean2d[g, 1]
-            o = opacity[g]
+            log_o = log_opacity[g]
             lab = label_idx[g]
             r = rgb[g, 0]
             gr = rgb[g, 1]
             bl = rgb[g, 2]
             z = depth[g]
             # alpha >= 1/255  <=>  q(dx, dy) = 0.5 A dx^2 + B dx dy + 0.5 C dy^2 <= ln(255 o)
-            lim = math.log(o) + log_thr_base
+            lim = log_o + log_thr_base
             for y in range(gy0, gy1 + 1):
                 dy = my - y
                 disc = (cb * dy) ** 2 - ca * (cc * dy * dy - 2.0 * lim)
@@ -277,7 +277,7 @@ def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, opacity, label_idx, 
                     power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
                     if power > 0.0:
                         continue
-                    alpha = min(ALPHA_MAX, o * math.exp(power))
+                    alpha = min(ALPHA_MAX, math.exp(power + log_o))
                     if alpha < ALPHA_THRESHOLD:
                         continue
                     t_cur = trans[ly, lx]
