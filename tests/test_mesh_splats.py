@@ -1,0 +1,75 @@
+"""Meshes to splats: texture and vertex colours land where they belong; renders match the mesh silhouette."""
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from pegasus_gen.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.mesh_splats import load_mesh, mesh_to_splats
+from pegasus_gen.render import render
+from pegasus_gen.silhouette import mesh_silhouette
+from pegasus_gen.sh import C0
+
+
+def splat_rgb(cloud):
+    return np.clip(cloud.sh[:, 0, :] * C0 + 0.5, 0, 1)
+
+
+def test_textured_obj_colours_follow_the_uv_map(tmp_path):
+    # a 0.2 m square in z = 0; texture: top half (v > 0.5, +y) green, bottom half blue, a red left strip
+    vertices = np.array([[-0.1, -0.1, 0], [0.1, -0.1, 0], [0.1, 0.1, 0], [-0.1, 0.1, 0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = (vertices[:, :2] + 0.1) / 0.2
+    image = np.zeros((64, 64, 3), np.uint8)
+    image[:32] = (0, 200, 0)
+    image[32:] = (0, 0, 200)
+    image[:, :8] = (220, 0, 0)
+    mesh = trimesh.Trimesh(vertices, faces, visual=trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(image)),
+                           process=False)
+    path = tmp_path / "quad.obj"
+    mesh.export(path)
+    cloud = mesh_to_splats(load_mesh(path), np.random.default_rng(0), spacing=0.004)
+    assert abs(len(cloud) - 0.04 / 0.004**2) < 50
+    rgb = splat_rgb(cloud)
+    x, y = cloud.means[:, 0], cloud.means[:, 1]
+    top, bottom, left = (y > 0.01) & (x > -0.07), (y < -0.01) & (x > -0.07), x < -0.08
+    assert np.allclose(rgb[top], [0, 200 / 255, 0], atol=0.02)
+    assert np.allclose(rgb[bottom], [0, 0, 200 / 255], atol=0.02)
+    assert np.allclose(rgb[left], [220 / 255, 0, 0], atol=0.02)
+
+
+def test_vertex_colours_are_interpolated():
+    mesh = trimesh.creation.box((0.1, 0.1, 0.1))
+    mesh.visual.vertex_colors = np.where(mesh.vertices[:, :1] > 0, [255, 0, 0, 255], [0, 0, 255, 255])
+    cloud = mesh_to_splats(mesh, np.random.default_rng(1), spacing=0.003)
+    rgb = splat_rgb(cloud)
+    right, left = cloud.means[:, 0] > 0.049, cloud.means[:, 0] < -0.049
+    assert np.allclose(rgb[right], [1, 0, 0], atol=0.02) and np.allclose(rgb[left], [0, 0, 1], atol=0.02)
+    side = np.abs(cloud.means[:, 0]) < 0.01  # halfway along x on the side faces: a blend
+    assert np.allclose(rgb[side][:, [0, 2]].sum(1), 1.0, atol=0.05) and (rgb[side][:, 0] > 0.3).all()
+
+
+@pytest.mark.parametrize("shape", ["box", "cylinder", "torus"])
+def test_splat_render_matches_the_mesh_silhouette(shape):
+    mesh = {"box": lambda: trimesh.creation.box((0.12, 0.08, 0.05)),
+            "cylinder": lambda: trimesh.creation.cylinder(0.04, 0.1, sections=64),
+            "torus": lambda: trimesh.creation.torus(0.05, 0.015, major_sections=64, minor_sections=32)}[shape]()
+    cloud = mesh_to_splats(mesh, np.random.default_rng(2), spacing=0.0015)
+    w, h = 320, 240
+    K = intrinsics_from_fov(w, h, 40)
+    for i in range(6):
+        a, el = 2 * np.pi * i / 6, 0.3 + 0.2 * i
+        T = look_at(0.35 * np.array([np.cos(a) * np.cos(el), np.sin(a) * np.cos(el), np.sin(el)]), [0, 0, 0])
+        splat_mask = render(cloud, K, T, w, h, device="cpu").alpha > 0.5
+        mesh_mask = mesh_silhouette(mesh.vertices, mesh.faces, K, T, w, h)
+        iou = (splat_mask & mesh_mask).sum() / (splat_mask | mesh_mask).sum()
+        assert iou >= 0.95, f"view {i}: IoU {iou:.3f}"
+
+
+def test_unreadable_mesh_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.obj"
+    bad.write_text("this is not an obj\n")
+    with pytest.raises(PegasusError, match="bad.obj"):
+        load_mesh(bad)
