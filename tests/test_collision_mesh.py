@@ -1,0 +1,58 @@
+"""Splats -> collision mesh: mesh -> splats -> mesh comes back close to the original."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from pegasus_gen.collision_mesh import MeshParams, splats_to_mesh
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.mesh_splats import mesh_to_splats
+from pegasus_gen.synthetic import plane
+
+
+def bowl():
+    """A thick bowl (concave): an (r, z) profile revolved about z."""
+    profile = np.array([[0.0, 0.0], [0.05, 0.0], [0.07, 0.05], [0.06, 0.05], [0.042, 0.012], [0.0, 0.012]])
+    return trimesh.creation.revolve(profile, sections=64)
+
+
+def chamfer(a, b, n=20000, seed=0):
+    pa, pb = a.sample(n, seed=seed), b.sample(n, seed=seed + 1)
+    return 0.5 * (cKDTree(pb).query(pa)[0].mean() + cKDTree(pa).query(pb)[0].mean())
+
+
+@pytest.mark.parametrize("name,make", [
+    ("cup", lambda: trimesh.creation.cylinder(0.04, 0.1, sections=64)),
+    ("box", lambda: trimesh.creation.box((0.12, 0.08, 0.05))),
+    ("bowl", bowl),
+])
+def test_round_trip_recovers_the_shape(name, make):
+    original = make()
+    cloud = mesh_to_splats(original, np.random.default_rng(0), spacing=0.002)
+    mesh, report = splats_to_mesh(cloud)
+    assert mesh.is_watertight and len(mesh.faces) <= 2000
+    assert chamfer(mesh, original) < 0.002, name
+    assert abs(mesh.volume / original.volume - 1) < 0.10, name
+    assert report["alpha"] > 0 and report["params"]["max_triangles"] == 2000
+
+
+def test_concavity_is_kept():
+    mesh, _ = splats_to_mesh(mesh_to_splats(bowl(), np.random.default_rng(1), spacing=0.002))
+    assert mesh.volume < 0.5 * mesh.convex_hull.volume  # the inside of the bowl is not filled like a hull
+
+
+def test_a_flat_sheet_cannot_be_closed_but_serves_as_an_environment_mesh():
+    rng = np.random.default_rng(0)
+    sheet = plane(0.2, 0.2, 4000, lambda u, v: np.full((len(u), 3), 0.5), rng, sh_degree=0)
+    with pytest.raises(PegasusError, match="coplanar"):
+        splats_to_mesh(sheet)
+    bumpy = sheet.replace(means=sheet.means + rng.normal(0, 2e-4, sheet.means.shape) * [0, 0, 1])
+    mesh, report = splats_to_mesh(bumpy, closed=False)
+    assert len(mesh.faces) > 100 and np.abs(mesh.vertices[:, 2]).max() < 0.002
+
+
+def test_too_few_opaque_splats_is_a_clear_error():
+    cloud = mesh_to_splats(trimesh.creation.box((0.1, 0.1, 0.1)), np.random.default_rng(0), spacing=0.01)
+    with pytest.raises(PegasusError, match="opacity"):
+        splats_to_mesh(cloud, MeshParams(min_opacity=0.99))
