@@ -17,6 +17,9 @@ import numpy as np
 
 from pegasus_gen.sh import basis_into
 
+# OpenMP first: some wheels (open3d's dependencies) bring a TBB too old for numba, which then warns.
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+
 ALPHA_THRESHOLD = 1.0 / 255.0  # contributions below this are skipped
 ALPHA_MAX = 0.999  # per-splat alpha clamp (gsplat; INRIA uses 0.99)
 T_MIN = 1e-4  # a pixel stops when its transmittance would fall to this
