@@ -26,12 +26,14 @@ import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from pegasus_gen.collision_mesh import convex_decomposition, is_concave
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats import SplatCloud, read_ply, write_ply
 
 MANIFEST = "asset.json"
 SPLATS = "splats.ply"
 COLLISION = "collision.obj"
+CONVEX_PARTS = "collision_convex.obj"  # concave objects: V-HACD parts used by the URDF's collision
 URDF = "model.urdf"
 
 
@@ -158,10 +160,16 @@ def mass_properties(mesh: trimesh.Trimesh, mass: float) -> tuple[np.ndarray, np.
     return np.asarray(mesh.center_mass), np.asarray(mesh.moment_inertia) * (mass / mesh.volume)
 
 
-def urdf_text(manifest: AssetManifest, mesh: trimesh.Trimesh) -> str:
-    """URDF of one link in the asset frame; objects get mass, COM origin and inertia from the mesh."""
+def urdf_text(manifest: AssetManifest, mesh: trimesh.Trimesh, collision_file: str = COLLISION) -> str:
+    """URDF of one link in the asset frame; objects get mass, COM origin and inertia from the mesh.
+
+    The visual geometry is the collision mesh; the collision geometry is ``collision_file`` (convex
+    parts for concave objects). Environments are static and collide as a concave triangle mesh.
+    """
     name = quoteattr(manifest.name)
-    geometry = f'<geometry><mesh filename="{COLLISION}" scale="1 1 1"/></geometry>'
+    visual = f'<geometry><mesh filename="{COLLISION}" scale="1 1 1"/></geometry>'
+    collision = f'<geometry><mesh filename="{collision_file}" scale="1 1 1"/></geometry>'
+    concave = ' concave="yes"' if manifest.kind == "environment" else ""
     if manifest.kind == "object":
         com, inertia = mass_properties(mesh, manifest.mass)
         inertial = (
@@ -176,25 +184,33 @@ def urdf_text(manifest: AssetManifest, mesh: trimesh.Trimesh) -> str:
             f'    <contact>\n      <lateral_friction value="{manifest.friction:.9g}"/>\n'
             f'      <restitution value="{manifest.restitution:.9g}"/>\n    </contact>\n'
             f'{inertial}'
-            f'    <visual>\n      <origin xyz="0 0 0" rpy="0 0 0"/>\n      {geometry}\n    </visual>\n'
-            f'    <collision>\n      <origin xyz="0 0 0" rpy="0 0 0"/>\n      {geometry}\n    </collision>\n'
+            f'    <visual>\n      <origin xyz="0 0 0" rpy="0 0 0"/>\n      {visual}\n    </visual>\n'
+            f'    <collision{concave}>\n      <origin xyz="0 0 0" rpy="0 0 0"/>\n      {collision}\n    </collision>\n'
             f'  </link>\n</robot>\n')
 
 
 def save_asset(path: str | os.PathLike, manifest: AssetManifest, splats: SplatCloud,
                mesh: trimesh.Trimesh, overwrite: bool = False) -> Asset:
-    """Write an asset directory; it appears complete or not at all (built beside it, then renamed)."""
+    """Write an asset directory; it appears complete or not at all (built beside it, then renamed).
+
+    Concave objects also get their V-HACD convex parts, which the URDF uses for collision.
+    """
     path = Path(path)
     if path.exists() and not overwrite:
         raise PegasusError(f"{path}: already exists (pass overwrite to replace it)")
-    urdf = urdf_text(manifest, mesh)  # validates the mesh before anything is written
+    if manifest.kind == "object":
+        mass_properties(mesh, manifest.mass)  # a closed mesh is needed: check before writing anything
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}."))
     try:
         (tmp / MANIFEST).write_text(manifest.model_dump_json(indent=2) + "\n")
         write_ply(tmp / SPLATS, splats)
         mesh.export(tmp / COLLISION)
-        (tmp / URDF).write_text(urdf)
+        collision_file = COLLISION
+        if manifest.kind == "object" and is_concave(mesh):
+            convex_decomposition(mesh, tmp / CONVEX_PARTS)
+            collision_file = CONVEX_PARTS
+        (tmp / URDF).write_text(urdf_text(manifest, mesh, collision_file))
         if path.exists():
             shutil.rmtree(path)
         os.replace(tmp, path)

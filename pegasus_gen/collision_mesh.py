@@ -95,3 +95,38 @@ def splats_to_mesh(cloud: SplatCloud, params: MeshParams = MeshParams(), closed:
               "triangles": len(mesh.faces), "watertight": bool(mesh.is_watertight),
               "volume": float(mesh.volume) if mesh.is_watertight else None}
     return mesh, report
+
+
+def is_concave(mesh: trimesh.Trimesh, fill_ratio: float = 0.95) -> bool:
+    """True when the closed ``mesh`` fills less than ``fill_ratio`` of its convex hull's volume."""
+    return mesh.volume < fill_ratio * mesh.convex_hull.volume
+
+
+def convex_decomposition(mesh: trimesh.Trimesh, out_path, resolution: int = 100_000) -> int:
+    """Write the convex parts of ``mesh`` (PyBullet's V-HACD) as one OBJ with an object per part.
+
+    PyBullet loads such an OBJ as a compound of convex hulls. Returns the number of parts.
+    V-HACD's console output goes to ``<out_path>.log``.
+    """
+    import os
+    import tempfile
+
+    import pybullet
+
+    out_path = str(out_path)
+    with tempfile.TemporaryDirectory() as tmp:
+        src = os.path.join(tmp, "in.obj")
+        mesh.export(src)
+        saved = os.dup(1)  # V-HACD prints progress from C: silence the process's stdout meanwhile
+        try:
+            with open(out_path + ".log", "w") as log:
+                os.dup2(log.fileno(), 1)
+                pybullet.vhacd(src, out_path, os.path.join(tmp, "vhacd.log"), resolution=resolution)
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+    with open(out_path) as f:
+        parts = sum(1 for line in f if line.startswith("o "))
+    if parts == 0:
+        raise PegasusError(f"{out_path}: V-HACD produced no convex parts")
+    return parts

@@ -119,3 +119,30 @@ def test_environment_needs_a_drop_region():
     env = AssetManifest(name="table", kind="environment", drop_region={"x_min": -0.3, "x_max": 0.3,
                                                                       "y_min": -0.2, "y_max": 0.2})
     assert env.obj_id is None
+
+
+def bowl_mesh():
+    profile = np.array([[0.0, 0.0], [0.05, 0.0], [0.07, 0.05], [0.06, 0.05], [0.042, 0.012], [0.0, 0.012]])
+    return trimesh.creation.revolve(profile, sections=48)
+
+
+def test_concave_object_collides_by_its_convex_parts(tmp_path):
+    """A ball dropped into a bowl asset ends up inside it, not on a convex hull lid."""
+    import pybullet as pb
+
+    box = make_object(tmp_path, "box", 1)
+    assert not (box.path / "collision_convex.obj").exists()
+    bowl = make_object(tmp_path, "bowl", 2, mesh=bowl_mesh())
+    assert (bowl.path / "collision_convex.obj").exists()
+    client = pb.connect(pb.DIRECT)
+    try:
+        pb.setGravity(0, 0, -9.81, physicsClientId=client)
+        pb.loadURDF(str(bowl.urdf_path), useFixedBase=True, physicsClientId=client)
+        shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=0.01, physicsClientId=client)
+        ball = pb.createMultiBody(0.01, shape, basePosition=[0, 0, 0.1], physicsClientId=client)
+        for _ in range(480):
+            pb.stepSimulation(physicsClientId=client)
+        z = pb.getBasePositionAndOrientation(ball, physicsClientId=client)[0][2]
+        assert z < 0.035, f"ball rests at z={z:.3f}: the bowl's inside is not empty for collision"
+    finally:
+        pb.disconnect(client)
