@@ -2,7 +2,8 @@
 closed triangle mesh (open3d + trimesh), the paper's pipeline with the alpha chosen automatically.
 
 The alpha radius starts at a few times the median neighbour spacing and grows until the alpha shape
-is a closed manifold, so concave parts are kept as tight as the sampling allows. Environments only
+is one closed manifold body (no inner cavity shell), so concave parts are kept as tight as the
+sampling allows. Environments only
 need a static triangle mesh and take the first alpha.
 """
 
@@ -18,6 +19,7 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats import SplatCloud
 
 o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+VOLUME_PLATEAU = 0.02  # relative volume change between alphas that counts as "no longer growing"
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,28 @@ def _as_trimesh(mesh: o3d.geometry.TriangleMesh) -> trimesh.Trimesh:
     return out
 
 
+def _closing_alpha_shape(pcd, tetra, pt_map, alpha: float, params: MeshParams, diag: float):
+    """(alpha shape, alpha): the smallest alpha whose shape is closed and whose volume no longer grows.
+
+    A closed shape can still hide an empty inner cavity (tetrahedra deep inside a thick part are larger
+    than alpha); the volume jumps once alpha fills it, then plateaus: the first plateau is the answer.
+    """
+    candidate = None  # (shape, alpha, volume) of the last closed shape
+    while alpha <= params.alpha_max_fraction * diag:
+        shape = _as_trimesh(o3d.geometry.TriangleMesh.create_from_point_cloud_alpha_shape(pcd, alpha, tetra, pt_map))
+        if shape.is_watertight and shape.body_count == 1:
+            trimesh.repair.fix_normals(shape)
+            volume = abs(shape.volume)
+            if candidate is not None and volume <= candidate[2] * (1 + VOLUME_PLATEAU):
+                return candidate[0], candidate[1]
+            candidate = (shape, alpha, volume)
+        alpha *= params.alpha_growth
+    if candidate is not None:
+        return candidate[0], candidate[1]
+    raise PegasusError(f"the splats do not close into a watertight mesh (alpha shapes up to "
+                       f"{1000 * alpha / params.alpha_growth:.1f} mm tried); is this an open surface?")
+
+
 def splats_to_mesh(cloud: SplatCloud, params: MeshParams = MeshParams(), closed: bool = True
                    ) -> tuple[trimesh.Trimesh, dict]:
     """Collision mesh (metres, the cloud's frame) and a report {params, alpha, volume, watertight}.
@@ -70,14 +94,10 @@ def splats_to_mesh(cloud: SplatCloud, params: MeshParams = MeshParams(), closed:
         raise PegasusError("the splat centres are coplanar: a flat sheet has no volume to close into a mesh")
     tetra, pt_map = o3d.geometry.TetraMesh.create_from_point_cloud(pcd)
     alpha = params.alpha_start * spacing
-    while True:
+    if closed:
+        shape, alpha = _closing_alpha_shape(pcd, tetra, pt_map, alpha, params, diag)
+    else:
         shape = _as_trimesh(o3d.geometry.TriangleMesh.create_from_point_cloud_alpha_shape(pcd, alpha, tetra, pt_map))
-        if not closed or shape.is_watertight:
-            break
-        alpha *= params.alpha_growth
-        if alpha > params.alpha_max_fraction * diag:
-            raise PegasusError(f"the splats do not close into a watertight mesh (alpha shapes up to "
-                               f"{1000 * alpha / params.alpha_growth:.1f} mm tried); is this an open surface?")
     trimesh.repair.fix_normals(shape)
     smooth = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(shape.vertices),
                                        o3d.utility.Vector3iVector(shape.faces))

@@ -1,0 +1,67 @@
+"""Imports: a tilted, scaled environment scan comes out level at z = 0; objects land in their object frame."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from pegasus_gen.asset_import import import_mesh, import_splat
+from pegasus_gen.assets import AssetLibrary
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.mesh_splats import mesh_to_splats
+from pegasus_gen.splats import concatenate, write_ply
+from pegasus_gen.synthetic import plane, wood_texture
+
+
+def test_tilted_scaled_environment_is_levelled(tmp_path):
+    rng = np.random.default_rng(0)
+    table = plane(0.8, 0.6, 20000, wood_texture, rng, sh_degree=1)
+    clutter = mesh_to_splats(trimesh.creation.box((0.1, 0.1, 0.1)), rng, spacing=0.01)
+    clutter = clutter.transformed(trimesh.transformations.translation_matrix([0.2, 0.1, 0.05]))
+    scene = concatenate([table, clutter])
+    tilt = np.eye(4)
+    tilt[:3, :3] = Rotation.from_euler("xyz", [25, -40, 70], degrees=True).as_matrix()
+    tilt[:3, 3] = [3.0, -1.0, 2.0]
+    scan = scene.transformed(tilt, scale=2.5)  # a scan in arbitrary units and pose
+    write_ply(tmp_path / "scan.ply", scan)
+    env = import_splat(tmp_path / "scan.ply", "room", "environment", AssetLibrary(tmp_path / "lib"), scale=0.4)
+    z = env.splats.means[:, 2]
+    on_table = np.abs(z) < 0.003
+    assert on_table.mean() > 0.8  # the table is level at z = 0 ...
+    assert (z[~on_table] > 0).mean() > 0.95  # ... with the clutter above it (z up)
+    normal = np.linalg.svd(env.splats.means[on_table] - env.splats.means[on_table].mean(0), full_matrices=False)[2][2]
+    assert np.degrees(np.arccos(abs(normal[2]))) < 1.0
+    region = env.manifest.drop_region  # the table's long side along x, in metres (scale applied)
+    assert -0.4 < region.x_min < region.x_max < 0.4 and -0.3 < region.y_min < region.y_max < 0.3
+    assert np.isclose(region.x_max - region.x_min, 0.8 * 0.96 * 0.8, rtol=0.05)
+    assert np.isclose(region.y_max - region.y_min, 0.6 * 0.96 * 0.8, rtol=0.05)
+    assert env.mesh.bounds[0, 2] > -0.005 and len(env.mesh.faces) > 0
+
+
+def test_object_mesh_import_centres_the_bounding_box(tmp_path):
+    mesh = trimesh.creation.cylinder(40, 100, sections=48)  # millimetres
+    mesh.apply_translation([500, 200, 50])
+    mesh.export(tmp_path / "cup.stl")
+    asset = import_mesh(tmp_path / "cup.stl", "cup", "object", AssetLibrary(tmp_path / "lib"), obj_id=3, scale=0.001)
+    assert np.allclose(asset.mesh.bounds, [[-0.04, -0.04, -0.05], [0.04, 0.04, 0.05]], atol=1e-3)
+    assert np.allclose(asset.splats.means.mean(0), 0, atol=0.003)
+    assert asset.manifest.obj_id == 3 and AssetLibrary(tmp_path / "lib").get(3).name == "cup"
+
+
+def test_object_splat_import_builds_a_collision_mesh(tmp_path):
+    cloud = mesh_to_splats(trimesh.creation.box((0.1, 0.06, 0.04)), np.random.default_rng(1), spacing=0.002)
+    write_ply(tmp_path / "box.ply", cloud.transformed(trimesh.transformations.translation_matrix([1, 2, 3])))
+    asset = import_splat(tmp_path / "box.ply", "box", "object", AssetLibrary(tmp_path / "lib"), obj_id=5)
+    assert asset.mesh.is_watertight and abs(asset.mesh.volume / (0.1 * 0.06 * 0.04) - 1) < 0.1
+    assert np.allclose(asset.mesh.bounds.mean(0), 0, atol=1e-6)
+    assert asset.manifest.geometry["alpha"] > 0
+
+
+def test_object_without_obj_id_and_bad_scale_are_refused(tmp_path):
+    write_ply(tmp_path / "b.ply", mesh_to_splats(trimesh.creation.box((0.1, 0.1, 0.1)), np.random.default_rng(0)))
+    lib = AssetLibrary(tmp_path / "lib")
+    with pytest.raises(PegasusError, match="obj-id"):
+        import_splat(tmp_path / "b.ply", "b", "object", lib)
+    with pytest.raises(PegasusError, match="scale"):
+        import_splat(tmp_path / "b.ply", "b", "object", lib, obj_id=1, scale=0)
+    assert not (tmp_path / "lib" / "b").exists()
