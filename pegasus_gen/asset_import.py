@@ -134,4 +134,6 @@ def import_mesh(path: str | os.PathLike, name: str, kind: str, library: AssetLib
     mesh = load_mesh(Path(path))
     mesh.apply_scale(scale)
     cloud = mesh_to_splats(mesh, rng, spacing=spacing)
-    return _finish(cloud, mesh, name, kind, obj_id, library, rng, params, overwrite, **fields)
+    collision = mesh.copy()
+    collision.merge_vertices(merge_tex=True, merge_norm=True)  # OBJ/STL seams split vertices
+    return _finish(cloud, collision, name, kind, obj_id, library, rng, params, overwrite, **fields)

@@ -108,6 +108,59 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _library(args):
+    from pegasus_gen.assets import AssetLibrary
+
+    return AssetLibrary(args.library)
+
+
+def cmd_assets_list(args) -> int:
+    lib = _library(args)
+    manifests = lib.manifests()
+    if not manifests:
+        print(f"no assets in {lib.root}")
+        return 0
+    print(f"{len(manifests)} assets in {lib.root}")
+    for m in manifests:
+        ident = f"obj_id {m.obj_id}" if m.kind == "object" else "environment"
+        print(f"  {m.name:<24} {ident}")
+    return 0
+
+
+def cmd_assets_show(args) -> int:
+    from pegasus_gen import images
+    from pegasus_gen.previews import turntable
+
+    asset = _library(args).get(args.name)
+    m = asset.manifest
+    print(f"{m.name}: {m.kind}" + (f", obj_id {m.obj_id}, mass {m.mass} kg" if m.kind == "object" else ""))
+    print(f"  {len(asset.splats):,} splats (SH degree {asset.splats.sh_degree}), collision mesh "
+          f"{len(asset.mesh.faces)} triangles, size {np.round(np.ptp(asset.mesh.bounds, 0), 4).tolist()} m")
+    if m.drop_region is not None:
+        r = m.drop_region
+        print(f"  drop region x [{r.x_min:.3f}, {r.x_max:.3f}] y [{r.y_min:.3f}, {r.y_max:.3f}] m")
+    image, ious = turntable(asset, device=args.device)
+    path = images.write_image(Path(args.out) / f"{m.name}_turntable.png", image)
+    print(f"  splats vs mesh silhouette IoU per view: {' '.join(f'{v:.3f}' for v in ious)}")
+    print(f"  preview: {path}")
+    return 0
+
+
+def cmd_assets_import(args) -> int:
+    from pegasus_gen import asset_import
+
+    fields = {"mass": args.mass} if args.mass is not None else {}
+    common = dict(name=args.name, kind=args.kind, library=_library(args), obj_id=args.obj_id, scale=args.scale,
+                  overwrite=args.overwrite, **fields)
+    if args.command_assets == "import-splat":
+        asset = asset_import.import_splat(args.file, **common)
+    else:
+        asset = asset_import.import_mesh(args.file, spacing=args.spacing, **common)
+    print(f"imported {asset.name} ({asset.manifest.kind}) into {asset.path}: {len(asset.splats):,} splats, "
+          f"collision mesh {len(asset.mesh.faces)} triangles")
+    return 0
+
+
 def _add_camera_args(p):
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
@@ -150,6 +203,29 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("info", help="summarise 3DGS PLY files")
     p.add_argument("ply", nargs="+")
     p.set_defaults(func=cmd_info)
+
+    assets = sub.add_parser("assets", help="asset library: list, show, import")
+    assets.add_argument("--library", help="library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
+    asub = assets.add_subparsers(dest="command_assets", required=True)
+    p = asub.add_parser("list", help="list the assets")
+    p.set_defaults(func=cmd_assets_list)
+    p = asub.add_parser("show", help="describe an asset and write a turntable preview PNG")
+    p.add_argument("name", help="asset name or obj_id")
+    p.add_argument("--out", default="out/assets", help="preview folder")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.set_defaults(func=cmd_assets_show)
+    for verb, what in (("import-splat", "a trained 3DGS PLY"), ("import-mesh", "a mesh (OBJ + texture, PLY, STL, GLB)")):
+        p = asub.add_parser(verb, help=f"import {what} as an asset")
+        p.add_argument("file")
+        p.add_argument("--name", required=True)
+        p.add_argument("--kind", choices=("object", "environment"), required=True)
+        p.add_argument("--obj-id", type=int, help="BOP object id (objects)")
+        p.add_argument("--scale", type=float, default=1.0, help="factor from file units to metres")
+        p.add_argument("--mass", type=float, help="kg (objects)")
+        p.add_argument("--overwrite", action="store_true")
+        if verb == "import-mesh":
+            p.add_argument("--spacing", type=float, default=0.002, help="splat spacing on the surface, m")
+        p.set_defaults(func=cmd_assets_import)
 
     p = sub.add_parser("demo", help="render the built-in demo scene")
     p.add_argument("--out", default="out/demo", help="output folder")

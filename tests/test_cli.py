@@ -51,3 +51,23 @@ def test_bad_camera_flags_are_rejected(tmp_path, flags):
     with pytest.raises(SystemExit) as exc:
         main(["render", str(tmp_path / "x.ply"), *flags])
     assert exc.value.code == 2
+
+
+def test_assets_import_list_show(tmp_path, capsys):
+    import trimesh
+
+    mesh = trimesh.creation.box((60, 40, 30))  # millimetres
+    mesh.export(tmp_path / "box.stl")
+    lib = str(tmp_path / "lib")
+    assert main(["assets", "--library", lib, "import-mesh", str(tmp_path / "box.stl"), "--name", "box",
+                 "--kind", "object", "--obj-id", "4", "--scale", "0.001"]) == 0
+    assert main(["assets", "--library", lib, "list"]) == 0
+    assert "box" in capsys.readouterr().out
+    assert main(["assets", "--library", lib, "show", "4", "--out", str(tmp_path / "prev"), "--device", "cpu"]) == 0
+    printed = capsys.readouterr().out
+    ious = [float(v) for v in printed.split("IoU per view:")[1].split("\n")[0].split()]
+    assert len(ious) == 6 and min(ious) > 0.9
+    preview = cv2.imread(str(tmp_path / "prev" / "box_turntable.png"))
+    assert preview.shape == (360, 1440, 3)
+    assert main(["assets", "--library", lib, "show", "nothing"]) == 2
+    assert "no asset 'nothing'" in capsys.readouterr().err
