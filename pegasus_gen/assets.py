@@ -72,6 +72,10 @@ class AssetManifest(BaseModel):
     mass: float = Field(default=0.2, gt=0)
     friction: float = Field(default=0.8, ge=0)
     restitution: float = Field(default=0.05, ge=0, le=1)
+    # resistance to rolling and spinning in place (PyBullet contact coefficients); without it a cup
+    # lying on its side rolls forever
+    rolling_friction: float = Field(default=0.002, ge=0)
+    spinning_friction: float = Field(default=0.002, ge=0)
     # BOP form: 4x4 row-major transforms (translation in metres here, mm in a written BOP dataset)
     symmetries_discrete: list[tuple[float, ...]] = Field(default_factory=list)
     symmetries_continuous: list[ContinuousSymmetry] = Field(default_factory=list)
@@ -182,6 +186,8 @@ def urdf_text(manifest: AssetManifest, mesh: trimesh.Trimesh, collision_file: st
                     '      <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>\n    </inertial>\n')
     return (f'<?xml version="1.0"?>\n<robot name={name}>\n  <link name={name}>\n'
             f'    <contact>\n      <lateral_friction value="{manifest.friction:.9g}"/>\n'
+            f'      <rolling_friction value="{manifest.rolling_friction:.9g}"/>\n'
+            f'      <spinning_friction value="{manifest.spinning_friction:.9g}"/>\n'
             f'      <restitution value="{manifest.restitution:.9g}"/>\n    </contact>\n'
             f'{inertial}'
             f'    <visual>\n      <origin xyz="0 0 0" rpy="0 0 0"/>\n      {visual}\n    </visual>\n'

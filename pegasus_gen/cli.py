@@ -127,6 +127,15 @@ def cmd_assets_list(args) -> int:
     return 0
 
 
+def cmd_assets_demo(args) -> int:
+    from pegasus_gen.demo_assets import build_demo_library
+
+    lib = _library(args)
+    names = build_demo_library(lib, seed=args.seed, force=args.force)
+    print(f"demo library: {len(names)} assets in {lib.root}: {', '.join(names)}")
+    return 0
+
+
 def cmd_assets_show(args) -> int:
     from pegasus_gen import images
     from pegasus_gen.previews import turntable
@@ -207,6 +216,10 @@ def build_parser() -> argparse.ArgumentParser:
     assets = sub.add_parser("assets", help="asset library: list, show, import")
     assets.add_argument("--library", help="library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
     asub = assets.add_subparsers(dest="command_assets", required=True)
+    p = asub.add_parser("demo", help="build the built-in demo assets (8 objects, 3 environments) once")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--force", action="store_true", help="rebuild even if present")
+    p.set_defaults(func=cmd_assets_demo)
     p = asub.add_parser("list", help="list the assets")
     p.set_defaults(func=cmd_assets_list)
     p = asub.add_parser("show", help="describe an asset and write a turntable preview PNG")
