@@ -13,7 +13,7 @@ from pegasus_gen.splats import write_ply
 
 
 def test_demo_writes_images_and_scene(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--splats", "20000", "--device", "cpu"]) == 0
+    assert main(["demo", "--out", str(tmp_path), "--library", str(tmp_path / "lib"), "--device", "cpu"]) == 0
     printed = capsys.readouterr().out
     assert str(tmp_path / "overview.png") in printed
     rgb = cv2.imread(str(tmp_path / "rgb.png"))
