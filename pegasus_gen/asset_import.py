@@ -113,26 +113,38 @@ def _finish(cloud: SplatCloud, mesh: trimesh.Trimesh | None, name: str, kind: st
     return save_asset(library.root / name, manifest, cloud, mesh, overwrite=overwrite)
 
 
-def import_splat(ply: str | os.PathLike, name: str, kind: str, library: AssetLibrary, obj_id: int | None = None,
-                 scale: float = 1.0, rng: np.random.Generator | None = None, params: MeshParams = MeshParams(),
-                 overwrite: bool = False, **fields) -> Asset:
-    """A trained 3DGS PLY (scaled by ``scale`` to metres) as an asset in ``library``."""
+def _check_placement(scale: float, transform) -> np.ndarray:
     if not scale > 0:
         raise PegasusError(f"--scale must be positive, got {scale}")
-    cloud = read_ply(ply).transformed(np.eye(4), scale=scale)
+    T = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64).reshape(4, 4)
+    R = T[:3, :3]
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-5) and np.linalg.det(R) > 0 and np.allclose(T[3], [0, 0, 0, 1])):
+        raise PegasusError("--transform must be a rigid 4x4 transform (16 numbers, row-major)")
+    return T
+
+
+def import_splat(ply: str | os.PathLike, name: str, kind: str, library: AssetLibrary, obj_id: int | None = None,
+                 scale: float = 1.0, transform=None, rng: np.random.Generator | None = None,
+                 params: MeshParams = MeshParams(), overwrite: bool = False, **fields) -> Asset:
+    """A trained 3DGS PLY as an asset in ``library``: scaled by ``scale`` to metres, then moved by the
+    optional rigid ``transform`` [4, 4] (e.g. to make z up) before the conventions above apply."""
+    T = _check_placement(scale, transform)
+    cloud = read_ply(ply).transformed(T, scale=scale)
     return _finish(cloud, None, name, kind, obj_id, library, rng or np.random.default_rng(0), params, overwrite,
                    **fields)
 
 
 def import_mesh(path: str | os.PathLike, name: str, kind: str, library: AssetLibrary, obj_id: int | None = None,
-                scale: float = 1.0, spacing: float = DEFAULT_SPACING, rng: np.random.Generator | None = None,
-                params: MeshParams = MeshParams(), overwrite: bool = False, **fields) -> Asset:
-    """A mesh file (OBJ + texture, PLY, ...) scaled to metres as an asset: splats sampled from its surface."""
-    if not scale > 0:
-        raise PegasusError(f"--scale must be positive, got {scale}")
+                scale: float = 1.0, transform=None, spacing: float = DEFAULT_SPACING,
+                rng: np.random.Generator | None = None, params: MeshParams = MeshParams(), overwrite: bool = False,
+                **fields) -> Asset:
+    """A mesh file (OBJ + texture, PLY, ...) as an asset, scaled to metres and moved by the optional rigid
+    ``transform``; its splats are sampled from its surface."""
+    T = _check_placement(scale, transform)
     rng = rng or np.random.default_rng(0)
     mesh = load_mesh(Path(path))
     mesh.apply_scale(scale)
+    mesh.apply_transform(T)
     cloud = mesh_to_splats(mesh, rng, spacing=spacing)
     collision = mesh.copy()
     collision.merge_vertices(merge_tex=True, merge_norm=True)  # OBJ/STL seams split vertices

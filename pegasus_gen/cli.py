@@ -170,7 +170,7 @@ def cmd_assets_import(args) -> int:
 
     fields = {"mass": args.mass} if args.mass is not None else {}
     common = dict(name=args.name, kind=args.kind, library=_library(args), obj_id=args.obj_id, scale=args.scale,
-                  overwrite=args.overwrite, **fields)
+                  transform=args.transform, overwrite=args.overwrite, **fields)
     if args.command_assets == "import-splat":
         asset = asset_import.import_splat(args.file, **common)
     else:
@@ -244,6 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--kind", choices=("object", "environment"), required=True)
         p.add_argument("--obj-id", type=int, help="BOP object id (objects)")
         p.add_argument("--scale", type=float, default=1.0, help="factor from file units to metres")
+        p.add_argument("--transform", type=float, nargs=16, metavar="T",
+                       help="rigid 4x4 (row-major) applied after scaling, e.g. to make z up")
         p.add_argument("--mass", type=float, help="kg (objects)")
         p.add_argument("--overwrite", action="store_true")
         if verb == "import-mesh":

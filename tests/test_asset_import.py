@@ -38,11 +38,14 @@ def test_tilted_scaled_environment_is_levelled(tmp_path):
     assert env.mesh.bounds[0, 2] > -0.005 and len(env.mesh.faces) > 0
 
 
-def test_object_mesh_import_centres_the_bounding_box(tmp_path):
-    mesh = trimesh.creation.cylinder(40, 100, sections=48)  # millimetres
+def test_object_mesh_import_centres_the_bounding_box_and_applies_the_transform(tmp_path):
+    mesh = trimesh.creation.cylinder(40, 100, sections=48)  # millimetres, axis along y in the file (y up)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
     mesh.apply_translation([500, 200, 50])
     mesh.export(tmp_path / "cup.stl")
-    asset = import_mesh(tmp_path / "cup.stl", "cup", "object", AssetLibrary(tmp_path / "lib"), obj_id=3, scale=0.001)
+    y_up_to_z_up = trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0])
+    asset = import_mesh(tmp_path / "cup.stl", "cup", "object", AssetLibrary(tmp_path / "lib"), obj_id=3, scale=0.001,
+                        transform=y_up_to_z_up)
     assert np.allclose(asset.mesh.bounds, [[-0.04, -0.04, -0.05], [0.04, 0.04, 0.05]], atol=1e-3)
     assert np.allclose(asset.splats.means.mean(0), 0, atol=0.003)
     assert asset.manifest.obj_id == 3 and AssetLibrary(tmp_path / "lib").get(3).name == "cup"
@@ -64,4 +67,6 @@ def test_object_without_obj_id_and_bad_scale_are_refused(tmp_path):
         import_splat(tmp_path / "b.ply", "b", "object", lib)
     with pytest.raises(PegasusError, match="scale"):
         import_splat(tmp_path / "b.ply", "b", "object", lib, obj_id=1, scale=0)
+    with pytest.raises(PegasusError, match="rigid"):
+        import_splat(tmp_path / "b.ply", "b", "object", lib, obj_id=1, transform=np.diag([2.0, 1, 1, 1]))
     assert not (tmp_path / "lib" / "b").exists()

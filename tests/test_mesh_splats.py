@@ -59,8 +59,8 @@ def test_splat_render_matches_the_mesh_silhouette(shape):
     cloud = mesh_to_splats(mesh, np.random.default_rng(2), spacing=0.0015)
     w, h = 320, 240
     K = intrinsics_from_fov(w, h, 40)
-    for i in range(6):
-        a, el = 2 * np.pi * i / 6, 0.3 + 0.2 * i
+    for i in range(20):  # 20 views around and above
+        a, el = 2 * np.pi * i / 20, 0.1 + 1.3 * (i % 5) / 4
         T = look_at(0.35 * np.array([np.cos(a) * np.cos(el), np.sin(a) * np.cos(el), np.sin(el)]), [0, 0, 0])
         splat_mask = render(cloud, K, T, w, h, device="cpu").alpha > 0.5
         mesh_mask = mesh_silhouette(mesh.vertices, mesh.faces, K, T, w, h)
