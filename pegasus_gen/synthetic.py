@@ -20,12 +20,6 @@ def wood_texture(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return light * (1 - t[:, None]) + dark * t[:, None]
 
 
-def checker_texture(u: np.ndarray, v: np.ndarray, cell: float, a=(0.85, 0.85, 0.8), b=(0.2, 0.25, 0.3)) -> np.ndarray:
-    """Checkerboard, rgb [N, 3], cells of ``cell`` metres."""
-    odd = (np.floor(u / cell) + np.floor(v / cell)) % 2 == 1
-    return np.where(odd[:, None], np.asarray(b, float), np.asarray(a, float))
-
-
 def plane(size_x: float, size_y: float, n: int, texture, rng: np.random.Generator, z: float = 0.0,
           **kwargs) -> SplatCloud:
     """A jittered grid of ~n splats on the rectangle |x| <= size_x/2, |y| <= size_y/2 at height z, normal +z."""
