@@ -27,6 +27,7 @@ class MeshParams:
     """Every knob of :func:`splats_to_mesh` (recorded in the asset manifest)."""
 
     min_opacity: float = 0.2  # splats below this opacity are not surface evidence
+    max_splat_size: float = 0.03  # m; splats with a larger standard deviation are floaters or blur
     outlier_neighbors: int = 20  # statistical outlier removal: neighbours considered
     outlier_std_ratio: float = 2.0  # ... and the distance threshold in standard deviations
     max_points: int = 40_000  # voxel-downsample the centres above this count
@@ -38,9 +39,11 @@ class MeshParams:
 
 
 def _clean_points(cloud: SplatCloud, params: MeshParams) -> o3d.geometry.PointCloud:
-    points = cloud.means[cloud.opacities >= params.min_opacity].astype(np.float64)
+    keep = (cloud.opacities >= params.min_opacity) & (cloud.scales.max(axis=1) <= params.max_splat_size)
+    points = cloud.means[keep].astype(np.float64)
     if len(points) < 20:
-        raise PegasusError(f"only {len(points)} splats have opacity >= {params.min_opacity}: too few for a mesh")
+        raise PegasusError(f"only {len(points)} splats have opacity >= {params.min_opacity} and size <= "
+                           f"{params.max_splat_size} m: too few for a mesh")
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if len(points) > params.max_points:
         diag = np.linalg.norm(np.ptp(points, axis=0))

@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 from pegasus_gen.collision_mesh import MeshParams, splats_to_mesh
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.mesh_splats import mesh_to_splats
+from pegasus_gen.splats import concatenate
 from pegasus_gen.synthetic import plane
 
 
@@ -56,3 +57,12 @@ def test_too_few_opaque_splats_is_a_clear_error():
     cloud = mesh_to_splats(trimesh.creation.box((0.1, 0.1, 0.1)), np.random.default_rng(0), spacing=0.01)
     with pytest.raises(PegasusError, match="opacity"):
         splats_to_mesh(cloud, MeshParams(min_opacity=0.99))
+
+
+def test_large_blurry_splats_are_not_surface_evidence():
+    cloud = mesh_to_splats(trimesh.creation.box((0.1, 0.1, 0.1)), np.random.default_rng(0), spacing=0.003)
+    rng = np.random.default_rng(1)
+    blobs = cloud.select(np.arange(200)).replace(  # big floaters far outside the box
+        means=rng.uniform(0.3, 0.5, (200, 3)), log_scales=np.full((200, 3), np.log(0.08)))
+    mesh, _ = splats_to_mesh(concatenate([cloud, blobs]), MeshParams(outlier_std_ratio=100.0))
+    assert np.abs(mesh.bounds).max() < 0.06 and abs(mesh.volume / 1e-3 - 1) < 0.1
