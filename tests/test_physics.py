@@ -1,0 +1,90 @@
+"""Physical placement: object frames survive PyBullet's COM frames, drops come to rest on the support."""
+
+import numpy as np
+import pybullet as pb
+import pytest
+
+from pegasus_gen.assets import AssetLibrary
+from pegasus_gen.demo_assets import build_demo_library
+from pegasus_gen.physics import PhysicsParams, World, drop_objects, random_quat_xyzw
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
+    build_demo_library(lib)
+    return lib
+
+
+def test_random_quaternions_are_uniform():
+    rng = np.random.default_rng(0)
+    qs = np.array([random_quat_xyzw(rng) for _ in range(4000)])
+    assert np.allclose(np.linalg.norm(qs, axis=1), 1)
+    z_axes = np.array([np.asarray(pb.getMatrixFromQuaternion(q)).reshape(3, 3)[:, 2] for q in qs])
+    assert np.abs(z_axes.mean(0)).max() < 0.05  # rotated axes cover the sphere evenly
+    assert abs((z_axes[:, 2] > 0.5).mean() - 0.25) < 0.03  # cap of 60 deg holds a quarter of the sphere
+
+
+def test_object_frame_round_trips_through_pybullet(library):
+    cup = library.get(1)  # its centre of mass is not at its frame origin
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(pb.getMatrixFromQuaternion(random_quat_xyzw(np.random.default_rng(3)))).reshape(3, 3)
+    T[:3, 3] = [0.1, -0.05, 0.4]
+    with World(library.get("wooden_table")) as world:
+        world.add(0, cup, T)
+        assert np.allclose(world.pose(0), T, atol=1e-6)
+
+
+def test_drop_comes_to_rest_on_the_support_without_intersections(library):
+    env = library.get("wooden_table")
+    objects = [library.get(i) for i in (1, 5, 7, 8)]
+    result = drop_objects(env, objects, np.random.default_rng(0))
+    assert result.at_rest and not result.removed and len(result.poses) == 4
+    with World(env) as world:  # re-create the final state and inspect contacts
+        for i, T in result.poses.items():
+            world.add(i, objects[i], T)
+        for i in result.poses:
+            others = [world.bodies[j] for j in result.poses if j != i]
+            for body in others:
+                closest = pb.getClosestPoints(world.bodies[i], body, 0.0, physicsClientId=world.client)
+                assert all(c[8] > -0.003 for c in closest), "objects intersect"
+            lowest = (objects[i].mesh.vertices @ result.poses[i][:3, :3].T + result.poses[i][:3, 3])[:, 2].min()
+            touching = any(pb.getContactPoints(world.bodies[i], b, physicsClientId=world.client)
+                           for b in others) if lowest > 0.003 else True
+            assert lowest > -0.003 and touching, f"object {i} floats or sinks (lowest point {lowest:.4f} m)"
+
+
+def test_same_seed_same_poses(library):
+    env = library.get("tiled_floor")
+    objects = [library.get(i) for i in (2, 3, 6)]
+    a = drop_objects(env, objects, np.random.default_rng(7))
+    b = drop_objects(env, objects, np.random.default_rng(7))
+    assert all(np.array_equal(a.poses[i], b.poses[i]) for i in a.poses)
+
+
+def test_dynamic_recording_follows_the_motion(library):
+    env = library.get("wooden_table")
+    objects = [library.get(4)]
+    result = drop_objects(env, objects, np.random.default_rng(1), record_fps=30.0)
+    times = [t for t, _ in result.trajectory]
+    assert np.allclose(np.diff(times), 1 / 30, atol=1e-9) and times[0] == 0
+    heights = [poses[0][2, 3] for _, poses in result.trajectory]
+    assert heights[0] > heights[-1] + 0.01  # it fell: the recorded poses are not frozen at the first step
+    assert abs(len(times) - result.settle_time * 30) <= 1
+    # the free fall before first contact follows z = z0 - g t^2 / 2
+    z0, g = heights[0], PhysicsParams().gravity
+    for t, z in zip(times[1:3], heights[1:3]):  # before it can reach the table (3 cm clearance)
+        assert z == pytest.approx(z0 - 0.5 * g * t * t, abs=0.002)
+
+
+def test_objects_that_leave_the_support_are_removed(library):
+    import dataclasses
+
+    from pegasus_gen.assets import DropRegion
+
+    shelf = library.get("store_shelf")  # 1.0 x 0.4 m board; drop one object beside it
+    beside = DropRegion(x_min=0.7, x_max=0.8, y_min=-0.05, y_max=0.05)
+    env = dataclasses.replace(shelf, manifest=shelf.manifest.model_copy(update={"drop_region": beside}))
+    result = drop_objects(env, [library.get(8), library.get(7)], np.random.default_rng(2),
+                          PhysicsParams(max_time=1.5))
+    assert result.removed == [0, 1] and result.poses == {}
