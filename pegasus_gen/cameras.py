@@ -50,3 +50,44 @@ def frame_points(points: np.ndarray, K: np.ndarray, width: int, height: int, azi
     az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
     eye = center + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     return look_at(eye, center)
+
+
+def orbit_key_poses(target: np.ndarray, rng: np.random.Generator, count: int,
+                    distance: tuple[float, float] = (0.4, 0.8), elevation_deg: tuple[float, float] = (20.0, 70.0),
+                    azimuth_span_deg: float = 360.0, jitter: float = 0.02) -> list[np.ndarray]:
+    """``count`` random T_cam_world key poses on a spherical shell around ``target`` [3] (world, m),
+    each looking at the target (plus up to ``jitter`` m of random aim offset), z up in the image.
+
+    Azimuths advance in order over ``azimuth_span_deg`` so interpolated trajectories sweep around.
+    """
+    start = rng.uniform(0, 2 * np.pi)
+    azimuths = start + np.sort(rng.uniform(0, np.radians(azimuth_span_deg), count))
+    poses = []
+    for az in azimuths:
+        d = rng.uniform(*distance)
+        el = np.radians(rng.uniform(*elevation_deg))
+        eye = np.asarray(target) + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        poses.append(look_at(eye, np.asarray(target) + rng.uniform(-jitter, jitter, 3)))
+    return poses
+
+
+def interpolate_poses(key_poses: list[np.ndarray], frames: int) -> list[np.ndarray]:
+    """``frames`` T_cam_world [4, 4] along the key poses: camera centres linearly, orientations by SLERP,
+    with the key poses at evenly spaced frames (first and last included)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    if len(key_poses) == 1 or frames == 1:
+        return [np.array(key_poses[0], dtype=np.float64) for _ in range(frames)]
+    keys = np.linspace(0.0, 1.0, len(key_poses))
+    R_world_cam = Rotation.from_matrix([np.asarray(T)[:3, :3].T for T in key_poses])
+    centres = np.array([-np.asarray(T)[:3, :3].T @ np.asarray(T)[:3, 3] for T in key_poses])
+    times = np.linspace(0.0, 1.0, frames)
+    rotations = Slerp(keys, R_world_cam)(times).as_matrix()
+    out = []
+    for t, R_wc in zip(times, rotations):
+        centre = np.array([np.interp(t, keys, centres[:, k]) for k in range(3)])
+        T = np.eye(4)
+        T[:3, :3] = R_wc.T
+        T[:3, 3] = -R_wc.T @ centre
+        out.append(T)
+    return out
