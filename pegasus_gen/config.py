@@ -1,0 +1,123 @@
+"""The generation config: every knob with its default in one place (typed, validated), from YAML + overrides."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal, Optional, Union
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from pegasus_gen.errors import PegasusError
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CameraConfig(_Strict):
+    """Pinhole intrinsics: fx/fy in pixels, or a horizontal field of view; principal point default: centre."""
+
+    width: int = Field(default=640, ge=16, le=8192)
+    height: int = Field(default=480, ge=16, le=8192)
+    fov_deg: float = Field(default=60.0, gt=1.0, lt=179.0)
+    fx: Optional[float] = Field(default=None, gt=0)
+    fy: Optional[float] = Field(default=None, gt=0)
+    cx: Optional[float] = None
+    cy: Optional[float] = None
+
+
+class TrajectoryConfig(_Strict):
+    """Random key poses on a shell around the objects, interpolated (SLERP + linear) into frames."""
+
+    distance: tuple[float, float] = (0.45, 0.8)  # m from the objects' centre
+    elevation_deg: tuple[float, float] = (25.0, 65.0)
+    azimuth_span_deg: float = Field(default=120.0, ge=0.0, le=360.0)
+    key_poses: int = Field(default=3, ge=1, le=100)
+    jitter: float = Field(default=0.03, ge=0.0)  # m of random aim offset
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        if not 0 < self.distance[0] <= self.distance[1]:
+            raise ValueError("distance must be (min, max) with 0 < min <= max")
+        if not -90 <= self.elevation_deg[0] <= self.elevation_deg[1] <= 90:
+            raise ValueError("elevation_deg must be (min, max) within -90..90")
+        return self
+
+
+class ObjectSpec(_Strict):
+    """An object asset (name or obj_id) and how many instances of it a scene holds (inclusive range)."""
+
+    asset: Union[str, int]
+    count: tuple[int, int] = (0, 1)
+
+    @model_validator(mode="after")
+    def _count(self):
+        if not 0 <= self.count[0] <= self.count[1] <= 20:
+            raise ValueError("count must be (min, max) with 0 <= min <= max <= 20")
+        return self
+
+
+def _demo_objects() -> list[ObjectSpec]:
+    return [ObjectSpec(asset=i, count=(0, 1)) for i in range(1, 9)]
+
+
+class GenerateConfig(_Strict):
+    """Everything `pegasus generate` needs; defaults make a small dataset from the demo library."""
+
+    output: Path = Path("out/dataset")
+    library: Optional[Path] = None  # default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets
+    environments: list[str] = Field(default_factory=lambda: ["wooden_table", "tiled_floor", "store_shelf"],
+                                    min_length=1)
+    objects: list[ObjectSpec] = Field(default_factory=_demo_objects, min_length=1)
+    min_objects: int = Field(default=3, ge=1, le=50)  # at least this many instances per scene
+    scenes: int = Field(default=4, ge=1, le=100_000)
+    frames_per_scene: int = Field(default=10, ge=1, le=1000)
+    dynamic: bool = False  # record the objects while they fall instead of after they rest
+    fps: float = Field(default=30.0, gt=0)  # camera frame rate of dynamic scenes
+    camera: CameraConfig = Field(default_factory=CameraConfig)
+    trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig)
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    image_format: Literal["jpg", "png"] = "jpg"
+    jpg_quality: int = Field(default=95, ge=1, le=100)
+    depth_scale: float = Field(default=0.1, gt=0)  # png value * depth_scale = mm (BOP PBR uses 0.1)
+    visib_delta: float = Field(default=0.015, gt=0)  # m, BOP's visibility tolerance
+    dope_json: bool = False
+    seed: int = 0
+    workers: int = Field(default=1, ge=1, le=256)
+
+
+def _set(tree: dict, dotted: str, value) -> None:
+    keys = dotted.split(".")
+    node = tree
+    for key in keys[:-1]:
+        node = node.setdefault(key, {})
+        if not isinstance(node, dict):
+            raise PegasusError(f"override {dotted}: {key} is not a section")
+    node[keys[-1]] = value
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] = ()) -> GenerateConfig:
+    """The config from a YAML file (optional) with ``key.sub=value`` overrides (values parsed as YAML)."""
+    tree: dict = {}
+    if path is not None:
+        try:
+            tree = yaml.safe_load(Path(path).read_text()) or {}
+        except OSError as exc:
+            raise PegasusError(f"{path}: cannot read config ({exc.strerror or exc})") from None
+        except yaml.YAMLError as exc:
+            raise PegasusError(f"{path}: not valid YAML ({exc})") from None
+        if not isinstance(tree, dict):
+            raise PegasusError(f"{path}: the config must be a mapping of keys to values")
+    for item in overrides:
+        if "=" not in item:
+            raise PegasusError(f"override {item!r}: expected key=value (e.g. camera.width=320)")
+        key, value = item.split("=", 1)
+        _set(tree, key.strip(), yaml.safe_load(value))
+    try:
+        return GenerateConfig.model_validate(tree)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        source = f"{path}: " if path is not None else ""
+        raise PegasusError(f"{source}config key {where}: {first['msg']}") from None
