@@ -118,6 +118,23 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_generate(args) -> int:
+    from pegasus_gen.config import load_config
+    from pegasus_gen.generate import generate
+
+    config_file = None
+    overrides = list(args.overrides)
+    if overrides and "=" not in overrides[0]:
+        config_file = overrides.pop(0)
+    cfg = load_config(config_file, overrides)
+    t0 = time.perf_counter()
+    out = generate(cfg)
+    seconds = time.perf_counter() - t0
+    print(f"dataset: {out} ({cfg.scenes} scenes x {cfg.frames_per_scene} frames requested; "
+          f"this run took {seconds:.1f} s)")
+    return 0
+
+
 def _library(args):
     from pegasus_gen.assets import AssetLibrary
 
@@ -222,6 +239,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("info", help="summarise 3DGS PLY files")
     p.add_argument("ply", nargs="+")
     p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("generate", help="generate a BOP dataset: pegasus generate [CONFIG.yaml] [key=value ...]")
+    p.add_argument("overrides", nargs="*", metavar="CONFIG|key=value",
+                   help="an optional YAML config first, then overrides such as scenes=10 camera.width=320")
+    p.set_defaults(func=cmd_generate)
 
     assets = sub.add_parser("assets", help="asset library: list, show, import")
     assets.add_argument("--library", help="library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")

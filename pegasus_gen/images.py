@@ -42,12 +42,13 @@ def colorize_labels(label: np.ndarray) -> np.ndarray:
     return out
 
 
-def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
+def write_image(path: str | os.PathLike, image: np.ndarray, jpg_quality: int = 95) -> Path:
     """Write an RGB (H, W, 3) or single-channel uint8/uint16 image; the file appears atomically."""
     path = Path(path)
     data = image[..., ::-1] if image.ndim == 3 else image
     try:
-        ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(data))
+        params = [cv2.IMWRITE_JPEG_QUALITY, int(jpg_quality)] if path.suffix.lower() in (".jpg", ".jpeg") else []
+        ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(data), params)
     except cv2.error:
         ok = False
     if not ok:

@@ -1,0 +1,180 @@
+"""`pegasus generate`: environments + objects -> physics -> camera trajectories -> renders -> BOP dataset.
+
+Layout (BOP train_pbr style)::
+
+    OUTPUT/camera.json  models/obj_XXXXXX.ply  models/models_info.json
+    OUTPUT/train_pbr/SSSSSS/{rgb,depth,mask,mask_visib}/...  scene_camera.json scene_gt.json scene_gt_info.json
+
+Every scene is built in a hidden temporary folder and renamed into place when complete, so a killed
+run never leaves a half scene; a rerun skips the scenes already there (``resume``). Each scene draws
+from its own random generator seeded by (seed, scene id): the same seed gives the same annotations
+whatever was resumed.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pegasus_gen import bop
+from pegasus_gen.assets import Asset, AssetLibrary
+from pegasus_gen.cameras import interpolate_poses, intrinsics_from_fov, orbit_key_poses
+from pegasus_gen.config import GenerateConfig
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.files import write_atomic
+from pegasus_gen.images import rgb_to_uint8, write_image
+from pegasus_gen.physics import drop_objects
+from pegasus_gen.render import render
+
+SPLIT = "train_pbr"
+
+
+def intrinsics(cfg: GenerateConfig) -> np.ndarray:
+    """K [3, 3] from the camera config (fx/fy when given, else the field of view)."""
+    c = cfg.camera
+    K = intrinsics_from_fov(c.width, c.height, c.fov_deg)
+    if c.fx is not None:
+        K[0, 0] = c.fx
+        K[1, 1] = c.fy if c.fy is not None else c.fx
+    if c.cx is not None:
+        K[0, 2] = c.cx
+    if c.cy is not None:
+        K[1, 2] = c.cy
+    return K
+
+
+@dataclass
+class Assets:
+    environments: list[Asset]
+    objects: dict[int, Asset]  # by obj_id
+
+
+def load_assets(cfg: GenerateConfig) -> Assets:
+    """Every asset the config names, loaded and checked before anything is written."""
+    lib = AssetLibrary(cfg.library)
+    envs = [lib.get(name) for name in cfg.environments]
+    for env in envs:
+        if env.manifest.kind != "environment":
+            raise PegasusError(f"config environments: {env.name} is not an environment asset")
+    objects = {}
+    for spec in cfg.objects:
+        asset = lib.get(spec.asset)
+        if asset.manifest.kind != "object":
+            raise PegasusError(f"config objects: {asset.name} is not an object asset")
+        objects[asset.manifest.obj_id] = asset
+    return Assets(envs, objects)
+
+
+def write_models(out: Path, assets: Assets, cfg: GenerateConfig) -> None:
+    """models/ (PLY in mm, bbox-centred object frames), models_info.json and camera.json."""
+    models = out / "models"
+    info = {}
+    for obj_id, asset in sorted(assets.objects.items()):
+        bop.write_model_ply(models / f"obj_{obj_id:06d}.ply", asset.mesh)
+        info[str(obj_id)] = bop.models_info_entry(asset.mesh, asset.manifest.symmetries_discrete,
+                                                  asset.manifest.symmetries_continuous)
+    _write_json(models / "models_info.json", info)
+    K = intrinsics(cfg)
+    _write_json(out / "camera.json", {"cx": K[0, 2], "cy": K[1, 2], "depth_scale": cfg.depth_scale,
+                                      "fx": K[0, 0], "fy": K[1, 1], "height": cfg.camera.height,
+                                      "width": cfg.camera.width})
+
+
+def _write_json(path: Path, data) -> None:
+    write_atomic(path, lambda f: f.write((json.dumps(data, indent=2) + "\n").encode()))
+
+
+def _choose_objects(cfg: GenerateConfig, assets: Assets, rng: np.random.Generator) -> list[Asset]:
+    chosen = []
+    by_spec = [assets.objects[_spec_id(spec, assets)] for spec in cfg.objects]
+    for spec, asset in zip(cfg.objects, by_spec):
+        chosen += [asset] * int(rng.integers(spec.count[0], spec.count[1] + 1))
+    while len(chosen) < cfg.min_objects:
+        chosen.append(by_spec[int(rng.integers(len(by_spec)))])
+    return chosen
+
+
+def _spec_id(spec, assets: Assets) -> int:
+    for obj_id, asset in assets.objects.items():
+        if spec.asset == obj_id or spec.asset == asset.name or str(spec.asset) == str(obj_id):
+            return obj_id
+    raise PegasusError(f"config objects: no asset {spec.asset!r}")
+
+
+def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: Assets) -> None:
+    """Simulate, render and write one scene into ``scene_dir`` (a fresh folder)."""
+    rng = np.random.default_rng([cfg.seed, scene_id])
+    env = assets.environments[int(rng.integers(len(assets.environments)))]
+    objects = _choose_objects(cfg, assets, rng)
+    drop = drop_objects(env, objects, rng, record_fps=cfg.fps if cfg.dynamic else None)
+    kept = sorted(drop.poses)
+    if not kept:
+        raise PegasusError(f"scene {scene_id}: every object left the support of {env.name}")
+    centre = np.mean([drop.poses[i][:3, 3] for i in kept], axis=0)
+    keys = orbit_key_poses(centre, rng, cfg.trajectory.key_poses, cfg.trajectory.distance,
+                           cfg.trajectory.elevation_deg, cfg.trajectory.azimuth_span_deg, cfg.trajectory.jitter)
+    cams = interpolate_poses(keys, cfg.frames_per_scene)
+    K = intrinsics(cfg)
+    W, H = cfg.camera.width, cfg.camera.height
+    K_canvas = K.copy()
+    K_canvas[0, 2] += W
+    K_canvas[1, 2] += H
+    for sub in ("rgb", "depth", "mask", "mask_visib"):
+        (scene_dir / sub).mkdir(parents=True)
+    scene_gt, scene_camera, scene_info = {}, {}, {}
+    ext = "jpg" if cfg.image_format == "jpg" else "png"
+    for im_id, T_cam_world in enumerate(cams):
+        if cfg.dynamic:  # the object poses of this frame's time; after the motion, the rest poses
+            frame = drop.trajectory[im_id][1] if im_id < len(drop.trajectory) else drop.poses
+            poses = {i: frame[i] for i in kept}
+        else:
+            poses = drop.poses
+        placed = [objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
+        out = render([env.splats, *placed], K, T_cam_world, W, H, device=cfg.device)
+        write_image(scene_dir / "rgb" / f"{im_id:06d}.{ext}", rgb_to_uint8(out.rgb), jpg_quality=cfg.jpg_quality)
+        write_image(scene_dir / "depth" / f"{im_id:06d}.png", bop.depth_to_png_values(out.depth, cfg.depth_scale))
+        scene_camera[str(im_id)] = bop.camera_entry(K, T_cam_world, cfg.depth_scale)
+        gts, infos = [], []
+        for gt_idx, i in enumerate(kept):
+            n = gt_idx
+            T_cam_obj = T_cam_world @ poses[i]
+            alone = render(placed[n], K_canvas, T_cam_world, 3 * W, 3 * H, device=cfg.device)
+            info, mask, visible = bop.gt_info_entry(alone.depth, out.depth, K, cfg.visib_delta)
+            write_image(scene_dir / "mask" / f"{im_id:06d}_{gt_idx:06d}.png", mask.astype(np.uint8) * 255)
+            write_image(scene_dir / "mask_visib" / f"{im_id:06d}_{gt_idx:06d}.png", visible.astype(np.uint8) * 255)
+            gts.append(bop.pose_entry(T_cam_obj, objects[i].manifest.obj_id))
+            infos.append(info)
+        scene_gt[str(im_id)] = gts
+        scene_info[str(im_id)] = infos
+    _write_json(scene_dir / "scene_gt.json", scene_gt)
+    _write_json(scene_dir / "scene_camera.json", scene_camera)
+    _write_json(scene_dir / "scene_gt_info.json", scene_info)
+
+
+def generate(cfg: GenerateConfig) -> Path:
+    """Write the dataset described by ``cfg``; returns the output folder. Scenes already there are kept."""
+    assets = load_assets(cfg)  # all checks before the output folder is touched
+    out = Path(cfg.output)
+    split = out / SPLIT
+    split.mkdir(parents=True, exist_ok=True)
+    write_models(out, assets, cfg)
+    todo = [s for s in range(cfg.scenes) if not (split / f"{s:06d}").is_dir()]
+    frames = tqdm(total=len(todo) * cfg.frames_per_scene, desc="generate", unit="frame")
+    for scene_id in todo:
+        final = split / f"{scene_id:06d}"
+        tmp = split / f".{scene_id:06d}.tmp"
+        shutil.rmtree(tmp, ignore_errors=True)  # left over by a killed run
+        try:
+            render_scene(tmp, scene_id, cfg, assets)
+            tmp.rename(final)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        frames.update(cfg.frames_per_scene)
+    frames.close()
+    return out
