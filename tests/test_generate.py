@@ -1,7 +1,6 @@
 """End to end: a small BOP dataset, read back with a minimal reader written here from the BOP spec."""
 
 import json
-import shutil
 
 import cv2
 import numpy as np
