@@ -28,7 +28,7 @@ from pegasus_gen.config import GenerateConfig
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.files import write_atomic
 from pegasus_gen.images import rgb_to_uint8, write_image
-from pegasus_gen.physics import drop_objects
+from pegasus_gen.physics import DropResult, drop_objects
 from pegasus_gen.render import render
 
 SPLIT = "train_pbr"
@@ -106,12 +106,40 @@ def _spec_id(spec, assets: Assets) -> int:
     raise PegasusError(f"config objects: no asset {spec.asset!r}")
 
 
-def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: Assets) -> None:
-    """Simulate, render and write one scene into ``scene_dir`` (a fresh folder)."""
+@dataclass
+class ScenePlan:
+    """What a scene holds: its environment, the objects dropped (by instance index), the physics
+    result (rest poses, and for dynamic scenes the poses at each camera frame), and the RNG to go on with."""
+
+    environment: Asset
+    objects: list[Asset]
+    drop: DropResult
+    rng: np.random.Generator
+
+
+def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
+    """Choose and simulate scene ``scene_id``; deterministic in (cfg.seed, scene_id)."""
     rng = np.random.default_rng([cfg.seed, scene_id])
     env = assets.environments[int(rng.integers(len(assets.environments)))]
     objects = _choose_objects(cfg, assets, rng)
     drop = drop_objects(env, objects, rng, record_fps=cfg.fps if cfg.dynamic else None)
+    return ScenePlan(env, objects, drop, rng)
+
+
+def frame_poses(plan: ScenePlan, im_id: int, dynamic: bool) -> dict[int, np.ndarray]:
+    """T_world_obj per kept instance at frame ``im_id``: the recorded motion in dynamic scenes (then the
+    rest poses once the motion has ended), the rest poses in static ones."""
+    kept = sorted(plan.drop.poses)
+    if dynamic and im_id < len(plan.drop.trajectory):
+        frame = plan.drop.trajectory[im_id][1]
+        return {i: frame[i] for i in kept}
+    return {i: plan.drop.poses[i] for i in kept}
+
+
+def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: Assets) -> None:
+    """Simulate, render and write one scene into ``scene_dir`` (a fresh folder)."""
+    plan = plan_scene(scene_id, cfg, assets)
+    env, objects, drop, rng = plan.environment, plan.objects, plan.drop, plan.rng
     kept = sorted(drop.poses)
     if not kept:
         raise PegasusError(f"scene {scene_id}: every object left the support of {env.name}")
@@ -129,11 +157,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     scene_gt, scene_camera, scene_info = {}, {}, {}
     ext = "jpg" if cfg.image_format == "jpg" else "png"
     for im_id, T_cam_world in enumerate(cams):
-        if cfg.dynamic:  # the object poses of this frame's time; after the motion, the rest poses
-            frame = drop.trajectory[im_id][1] if im_id < len(drop.trajectory) else drop.poses
-            poses = {i: frame[i] for i in kept}
-        else:
-            poses = drop.poses
+        poses = frame_poses(plan, im_id, cfg.dynamic)
         placed = [objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
         out = render([env.splats, *placed], K, T_cam_world, W, H, device=cfg.device)
         write_image(scene_dir / "rgb" / f"{im_id:06d}.{ext}", rgb_to_uint8(out.rgb), jpg_quality=cfg.jpg_quality)
