@@ -140,3 +140,24 @@ def test_static_scene_keeps_the_rest_poses_in_every_frame(library, tmp_path):
     for im_id in (1, 2):
         for a, b in zip(written[0], written[im_id]):
             assert np.allclose(a, b, atol=1e-6)
+
+
+@pytest.mark.parametrize("offset", [[0.0, 0.0, 0.0], [0.35, 0.1, 0.0], [0.0, -0.3, 0.2]])
+def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
+    from pegasus_gen.cameras import intrinsics_from_fov, look_at
+    from pegasus_gen.generate import object_depth_canvas
+    from pegasus_gen.render import render
+
+    asset = library.get(7)
+    T_world_obj = np.eye(4)
+    T_world_obj[:3, 3] = np.array([0.0, 0.0, 0.03]) + offset  # in view, beside the image, above it
+    W, H = 160, 120
+    K = intrinsics_from_fov(W, H, 60)
+    K_canvas = K.copy()
+    K_canvas[:2, 2] += [W, H]
+    T_cam_world = look_at([0.0, -0.45, 0.35], [0, 0, 0])
+    placed = asset.splats.transformed(T_world_obj)
+    full = render(placed, K_canvas, T_cam_world, 3 * W, 3 * H, device="cpu").depth
+    window = object_depth_canvas(placed, asset.mesh, T_cam_world @ T_world_obj, K_canvas, T_cam_world, W, H, "cpu")
+    assert (full > 0).sum() > 200
+    np.testing.assert_allclose(window, full, atol=1e-5)
