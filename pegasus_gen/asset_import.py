@@ -20,7 +20,7 @@ from pegasus_gen.assets import Asset, AssetLibrary, AssetManifest, DropRegion, s
 from pegasus_gen.collision_mesh import MeshParams, splats_to_mesh
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.mesh_splats import DEFAULT_SPACING, load_mesh, mesh_to_splats
-from pegasus_gen.splats import SplatCloud, read_ply
+from pegasus_gen.splats import SplatCloud, is_rigid, read_ply
 
 
 def support_plane_alignment(points: np.ndarray, rng: np.random.Generator, distance: float = 0.005
@@ -117,8 +117,7 @@ def _check_placement(scale: float, transform) -> np.ndarray:
     if not scale > 0:
         raise PegasusError(f"--scale must be positive, got {scale}")
     T = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64).reshape(4, 4)
-    R = T[:3, :3]
-    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-5) and np.linalg.det(R) > 0 and np.allclose(T[3], [0, 0, 0, 1])):
+    if not is_rigid(T):
         raise PegasusError("--transform must be a rigid 4x4 transform (16 numbers, row-major)")
     return T
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from pegasus_gen import rasterizer_cpu
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.splats import SplatCloud
+from pegasus_gen.splats import SplatCloud, is_rigid
 
 log = logging.getLogger("pegasus.render")
 
@@ -65,8 +65,7 @@ def _check_camera(K, T_cam_world, width, height):
         raise ValueError(f"K must be a finite 3x3 intrinsic matrix with fx, fy > 0, got {K.tolist()}")
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError("T_cam_world must be a finite 4x4 matrix")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+    if not is_rigid(T):
         raise ValueError("T_cam_world must be a rigid transform (orthonormal rotation, det +1)")
     if int(width) != width or int(height) != height or width <= 0 or height <= 0:
         raise ValueError(f"width and height must be positive integers, got {width} x {height}")

@@ -107,7 +107,7 @@ class SplatCloud:
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"transform must be a finite 4x4 matrix, got shape {T.shape}")
         R, t = T[:3, :3], T[:3, 3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+        if not is_rigid(T):
             raise ValueError("transform must be rigid: orthonormal rotation with det +1 and last row [0, 0, 0, 1]")
         if not (np.isfinite(scale) and scale > 0):
             raise ValueError(f"scale must be a positive number, got {scale}")
@@ -147,7 +147,15 @@ def concatenate(clouds: Sequence[SplatCloud]) -> SplatCloud:
                         ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh", "labels")))
 
 
-# ---------------------------------------------------------------- quaternions
+# ---------------------------------------------------------------- pose math
+def is_rigid(T: np.ndarray, atol: float = 1e-5) -> bool:
+    """Whether T [4, 4] is a rigid transform: orthonormal rotation with det +1, last row [0, 0, 0, 1]."""
+    T = np.asarray(T, dtype=np.float64)
+    R = T[:3, :3]
+    return bool(np.allclose(R @ R.T, np.eye(3), atol=atol) and np.linalg.det(R) > 0
+                and np.allclose(T[3], [0, 0, 0, 1]))
+
+
 def quat_multiply_wxyz(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product a * b of wxyz quaternions, broadcasting over leading axes. Returns float64."""
     a = np.asarray(a, dtype=np.float64)
@@ -186,5 +194,5 @@ def quat_wxyz_to_rotation(q: np.ndarray) -> np.ndarray:
 # -------------------------------------------------------------------- PLY I/O
 from pegasus_gen.splat_ply import read_ply, write_ply  # noqa: E402  (re-exported: pegasus_gen.splats.read_ply)
 
-__all__ = ["SplatCloud", "concatenate", "read_ply", "write_ply", "quat_multiply_wxyz",
+__all__ = ["SplatCloud", "concatenate", "read_ply", "write_ply", "is_rigid", "quat_multiply_wxyz",
            "rotation_to_quat_wxyz", "quat_wxyz_to_rotation"]
