@@ -14,6 +14,21 @@ def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray
     return np.array([[fx, 0.0, (width - 1) / 2], [0.0, fx, (height - 1) / 2], [0.0, 0.0, 1.0]])
 
 
+def intrinsics(width: int, height: int, fov_x_deg: float, fx: float | None = None, fy: float | None = None,
+               cx: float | None = None, cy: float | None = None) -> np.ndarray:
+    """K [3, 3]: from the horizontal field of view unless ``fx`` is given (``fy`` defaults to ``fx``);
+    the principal point defaults to the image centre."""
+    K = intrinsics_from_fov(width, height, fov_x_deg)
+    if fx is not None:
+        K[0, 0] = fx
+        K[1, 1] = fy if fy is not None else fx
+    if cx is not None:
+        K[0, 2] = cx
+    if cy is not None:
+        K[1, 2] = cy
+    return K
+
+
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """T_cam_world [4, 4] for a camera at ``eye`` looking at ``target`` (world points, metres).
 

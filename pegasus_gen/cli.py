@@ -15,15 +15,9 @@ from pegasus_gen.errors import PegasusError
 
 
 def _camera_from_args(args, points):
-    from pegasus_gen.cameras import frame_points, intrinsics_from_fov, look_at
+    from pegasus_gen.cameras import frame_points, intrinsics, look_at
 
-    if args.fx is not None:
-        fy = args.fy if args.fy is not None else args.fx
-        cx = args.cx if args.cx is not None else (args.width - 1) / 2
-        cy = args.cy if args.cy is not None else (args.height - 1) / 2
-        K = np.array([[args.fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-    else:
-        K = intrinsics_from_fov(args.width, args.height, args.fov)
+    K = intrinsics(args.width, args.height, args.fov, args.fx, args.fy, args.cx, args.cy)
     if args.eye is not None:
         target = args.target if args.target is not None else np.median(points, axis=0)
         T = look_at(args.eye, target)

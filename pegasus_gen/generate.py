@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from pegasus_gen import bop
 from pegasus_gen.assets import Asset, AssetLibrary
-from pegasus_gen.cameras import interpolate_poses, intrinsics_from_fov, orbit_key_poses
+from pegasus_gen.cameras import interpolate_poses, intrinsics, orbit_key_poses
 from pegasus_gen.config import GenerateConfig
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.files import write_atomic
@@ -34,18 +34,10 @@ from pegasus_gen.render import render
 SPLIT = "train_pbr"
 
 
-def intrinsics(cfg: GenerateConfig) -> np.ndarray:
+def camera_matrix(cfg: GenerateConfig) -> np.ndarray:
     """K [3, 3] from the camera config (fx/fy when given, else the field of view)."""
     c = cfg.camera
-    K = intrinsics_from_fov(c.width, c.height, c.fov_deg)
-    if c.fx is not None:
-        K[0, 0] = c.fx
-        K[1, 1] = c.fy if c.fy is not None else c.fx
-    if c.cx is not None:
-        K[0, 2] = c.cx
-    if c.cy is not None:
-        K[1, 2] = c.cy
-    return K
+    return intrinsics(c.width, c.height, c.fov_deg, c.fx, c.fy, c.cx, c.cy)
 
 
 @dataclass
@@ -79,7 +71,7 @@ def write_models(out: Path, assets: Assets, cfg: GenerateConfig) -> None:
         info[str(obj_id)] = bop.models_info_entry(asset.mesh, asset.manifest.symmetries_discrete,
                                                   asset.manifest.symmetries_continuous)
     _write_json(models / "models_info.json", info)
-    K = intrinsics(cfg)
+    K = camera_matrix(cfg)
     _write_json(out / "camera.json", {"cx": K[0, 2], "cy": K[1, 2], "depth_scale": cfg.depth_scale,
                                       "fx": K[0, 0], "fy": K[1, 1], "height": cfg.camera.height,
                                       "width": cfg.camera.width})
@@ -175,7 +167,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     keys = orbit_key_poses(centre, rng, cfg.trajectory.key_poses, cfg.trajectory.distance,
                            cfg.trajectory.elevation_deg, cfg.trajectory.azimuth_span_deg, cfg.trajectory.jitter)
     cams = interpolate_poses(keys, cfg.frames_per_scene)
-    K = intrinsics(cfg)
+    K = camera_matrix(cfg)
     W, H = cfg.camera.width, cfg.camera.height
     K_canvas = K.copy()
     K_canvas[0, 2] += W

@@ -46,3 +46,13 @@ def test_slerp_halfway_between_two_views():
     angle_a = np.linalg.norm(Rotation.from_matrix(mid[:3, :3] @ a[:3, :3].T).as_rotvec())
     angle_b = np.linalg.norm(Rotation.from_matrix(mid[:3, :3] @ b[:3, :3].T).as_rotvec())
     assert np.isclose(angle_a, angle_b)
+
+
+def test_intrinsics_from_fov_or_focal_lengths():
+    from pegasus_gen.cameras import intrinsics
+
+    K = intrinsics(640, 480, 90.0)
+    assert np.isclose(K[0, 0], 320) and K[0, 0] == K[1, 1] and np.allclose(K[:2, 2], [319.5, 239.5])
+    K = intrinsics(640, 480, 90.0, fx=500.0, cx=300.0)
+    assert K[0, 0] == K[1, 1] == 500 and K[0, 2] == 300 and K[1, 2] == 239.5
+    assert intrinsics(640, 480, 90.0, fx=500.0, fy=510.0)[1, 1] == 510
