@@ -43,7 +43,12 @@ def camera_matrix(cfg: GenerateConfig) -> np.ndarray:
 @dataclass
 class Assets:
     environments: list[Asset]
-    objects: dict[int, Asset]  # by obj_id
+    per_spec: list[Asset]  # the object asset of each entry of cfg.objects, in order
+
+    @property
+    def objects(self) -> dict[int, Asset]:
+        """The distinct object assets by obj_id."""
+        return {a.manifest.obj_id: a for a in self.per_spec}
 
 
 def load_assets(cfg: GenerateConfig) -> Assets:
@@ -53,13 +58,11 @@ def load_assets(cfg: GenerateConfig) -> Assets:
     for env in envs:
         if env.manifest.kind != "environment":
             raise PegasusError(f"config environments: {env.name} is not an environment asset")
-    objects = {}
-    for spec in cfg.objects:
-        asset = lib.get(spec.asset)
+    per_spec = [lib.get(spec.asset) for spec in cfg.objects]
+    for asset in per_spec:
         if asset.manifest.kind != "object":
             raise PegasusError(f"config objects: {asset.name} is not an object asset")
-        objects[asset.manifest.obj_id] = asset
-    return Assets(envs, objects)
+    return Assets(envs, per_spec)
 
 
 def write_models(out: Path, assets: Assets, cfg: GenerateConfig) -> None:
@@ -83,19 +86,11 @@ def _write_json(path: Path, data) -> None:
 
 def _choose_objects(cfg: GenerateConfig, assets: Assets, rng: np.random.Generator) -> list[Asset]:
     chosen = []
-    by_spec = [assets.objects[_spec_id(spec, assets)] for spec in cfg.objects]
-    for spec, asset in zip(cfg.objects, by_spec):
+    for spec, asset in zip(cfg.objects, assets.per_spec):
         chosen += [asset] * int(rng.integers(spec.count[0], spec.count[1] + 1))
     while len(chosen) < cfg.min_objects:
-        chosen.append(by_spec[int(rng.integers(len(by_spec)))])
+        chosen.append(assets.per_spec[int(rng.integers(len(assets.per_spec)))])
     return chosen
-
-
-def _spec_id(spec, assets: Assets) -> int:
-    for obj_id, asset in assets.objects.items():
-        if spec.asset == obj_id or spec.asset == asset.name or str(spec.asset) == str(obj_id):
-            return obj_id
-    raise PegasusError(f"config objects: no asset {spec.asset!r}")
 
 
 @dataclass
@@ -175,19 +170,19 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     for sub in ("rgb", "depth", "mask", "mask_visib"):
         (scene_dir / sub).mkdir(parents=True)
     scene_gt, scene_camera, scene_info = {}, {}, {}
-    ext = "jpg" if cfg.image_format == "jpg" else "png"
+    placed = None
     for im_id, T_cam_world in enumerate(cams):
         poses = frame_poses(plan, im_id, cfg.dynamic)
-        placed = [objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
+        if placed is None or cfg.dynamic:  # static scenes place their objects once
+            placed = [objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
         out = render([env.splats, *placed], K, T_cam_world, W, H, device=cfg.device)
-        write_image(scene_dir / "rgb" / f"{im_id:06d}.{ext}", rgb_to_uint8(out.rgb), jpg_quality=cfg.jpg_quality)
+        write_image(scene_dir / "rgb" / f"{im_id:06d}.{cfg.image_format}", rgb_to_uint8(out.rgb), jpg_quality=cfg.jpg_quality)
         write_image(scene_dir / "depth" / f"{im_id:06d}.png", bop.depth_to_png_values(out.depth, cfg.depth_scale))
         scene_camera[str(im_id)] = bop.camera_entry(K, T_cam_world, cfg.depth_scale)
         gts, infos = [], []
         for gt_idx, i in enumerate(kept):
-            n = gt_idx
             T_cam_obj = T_cam_world @ poses[i]
-            canvas = object_depth_canvas(placed[n], objects[i].mesh, T_cam_obj, K_canvas, T_cam_world, W, H,
+            canvas = object_depth_canvas(placed[gt_idx], objects[i].mesh, T_cam_obj, K_canvas, T_cam_world, W, H,
                                          cfg.device)
             info, mask, visible = bop.gt_info_entry(canvas, out.depth, K, cfg.visib_delta)
             write_image(scene_dir / "mask" / f"{im_id:06d}_{gt_idx:06d}.png", mask.astype(np.uint8) * 255)
