@@ -18,9 +18,9 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.mesh_splats import mesh_to_splats
 from pegasus_gen.splats import SplatCloud, concatenate
 from pegasus_gen.surface_splats import surface_splats
-from pegasus_gen.synthetic import wood_texture
+from pegasus_gen.synthetic import plane, wood_texture
 
-DEMO_VERSION = 2
+DEMO_VERSION = 3
 OBJECT_SPACING = 0.0015  # m between splats on objects
 ENV_SPACING = 0.002
 
@@ -180,14 +180,7 @@ def _clutter(rng: np.random.Generator, positions) -> tuple[list[SplatCloud], lis
 
 def _plane_env(name: str, size, texture, rng, clutter_xy, extra=()):
     sx, sy = size
-    count = int(sx * sy / ENV_SPACING**2)
-    ny = int(np.sqrt(count * sy / sx))
-    nx = count // ny
-    gx, gy = np.meshgrid((np.arange(nx) + 0.5) / nx - 0.5, (np.arange(ny) + 0.5) / ny - 0.5)
-    xy = np.stack([gx.ravel() * sx, gy.ravel() * sy], 1) + rng.uniform(-0.3, 0.3, (nx * ny, 2)) * ENV_SPACING
-    pts = np.c_[xy, np.zeros(len(xy))]
-    floor = surface_splats(pts, np.tile([0.0, 0, 1], (len(pts), 1)), texture(xy[:, 0], xy[:, 1]), ENV_SPACING, rng,
-                           sh_degree=0)
+    floor = plane(sx, sy, int(sx * sy / ENV_SPACING**2), texture, rng, sh_degree=0)
     clutter_splats, clutter_meshes = _clutter(rng, clutter_xy)
     support = trimesh.Trimesh([[-sx / 2, -sy / 2, 0], [sx / 2, -sy / 2, 0], [sx / 2, sy / 2, 0], [-sx / 2, sy / 2, 0]],
                               [[0, 1, 2], [0, 2, 3]])
