@@ -118,3 +118,34 @@ def gt_info_entry(object_depth_canvas: np.ndarray, scene_depth: np.ndarray, K: n
             "px_count_all": px_all, "px_count_valid": int((mask & (scene_depth > 0)).sum()),
             "px_count_visib": px_visib, "visib_fract": px_visib / px_all if px_all else 0.0}
     return info, mask, visible
+
+
+def coco_rle(mask: np.ndarray) -> dict:
+    """Uncompressed COCO run-length encoding of a binary mask [H, W]: run lengths over the column-major
+    pixel order, starting with a (possibly empty) run of zeros; {"counts": [...], "size": [H, W]}."""
+    flat = np.asarray(mask, dtype=bool).ravel(order="F")
+    changes = np.flatnonzero(flat[1:] != flat[:-1]) + 1
+    bounds = np.concatenate([[0], changes, [flat.size]])
+    counts = np.diff(bounds).tolist()
+    if flat.size and flat[0]:
+        counts = [0] + counts
+    return {"counts": [int(c) for c in counts], "size": [int(mask.shape[0]), int(mask.shape[1])]}
+
+
+def coco_annotation(ann_id: int, im_id: int, obj_id: int, mask_visib: np.ndarray, gt_info: dict,
+                    min_visib_fract: float = 0.1) -> dict:
+    """scene_gt_coco annotation of one instance as bop_toolkit's calc_gt_coco: its visible mask as RLE,
+    bbox = bbox_visib (x, y, w, h), area = visible pixels, ``ignore`` below ``min_visib_fract``."""
+    h, w = mask_visib.shape
+    return {"id": int(ann_id), "image_id": int(im_id), "category_id": int(obj_id), "iscrowd": 0,
+            "area": int(np.count_nonzero(mask_visib)), "bbox": list(gt_info["bbox_visib"]),
+            "segmentation": coco_rle(mask_visib), "width": int(w), "height": int(h),
+            "ignore": bool(gt_info["visib_fract"] < min_visib_fract)}
+
+
+def coco_dataset(categories: dict[int, str], images: list[dict], annotations: list[dict]) -> dict:
+    """scene_gt_coco.json content: categories {obj_id: name}, images [{id, file_name, width, height}]."""
+    return {"info": {"description": "pegasus generate", "version": "1.0"}, "licenses": [],
+            "categories": [{"id": int(k), "name": v, "supercategory": "pegasus"}
+                           for k, v in sorted(categories.items())],
+            "images": images, "annotations": annotations}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 
@@ -69,20 +71,32 @@ def frame_points(points: np.ndarray, K: np.ndarray, width: int, height: int, azi
 
 def orbit_key_poses(target: np.ndarray, rng: np.random.Generator, count: int,
                     distance: tuple[float, float] = (0.4, 0.8), elevation_deg: tuple[float, float] = (20.0, 70.0),
-                    azimuth_span_deg: float = 360.0, jitter: float = 0.02) -> list[np.ndarray]:
+                    azimuth_span_deg: float = 360.0, jitter: float = 0.02,
+                    score: Callable[[np.ndarray], float] | None = None, min_score: float = 1.0,
+                    tries: int = 30) -> list[np.ndarray]:
     """``count`` random T_cam_world key poses on a spherical shell around ``target`` [3] (world, m),
     each looking at the target (plus up to ``jitter`` m of random aim offset), z up in the image.
 
     Azimuths advance in order over ``azimuth_span_deg`` so interpolated trajectories sweep around.
+    With ``score`` (T_cam_world -> float), distance, elevation and aim are redrawn up to ``tries`` times
+    per key pose until the score reaches ``min_score``; the best draw is kept.
     """
     start = rng.uniform(0, 2 * np.pi)
     azimuths = start + np.sort(rng.uniform(0, np.radians(azimuth_span_deg), count))
     poses = []
     for az in azimuths:
-        d = rng.uniform(*distance)
-        el = np.radians(rng.uniform(*elevation_deg))
-        eye = np.asarray(target) + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        poses.append(look_at(eye, np.asarray(target) + rng.uniform(-jitter, jitter, 3)))
+        best, best_score = None, -np.inf
+        for _ in range(tries if score is not None else 1):
+            d = rng.uniform(*distance)
+            el = np.radians(rng.uniform(*elevation_deg))
+            eye = np.asarray(target) + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+            T = look_at(eye, np.asarray(target) + rng.uniform(-jitter, jitter, 3))
+            s = score(T) if score is not None else 0.0
+            if s > best_score:
+                best, best_score = T, s
+            if s >= min_score:
+                break
+        poses.append(best)
     return poses
 
 

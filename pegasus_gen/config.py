@@ -35,6 +35,8 @@ class TrajectoryConfig(_Strict):
     azimuth_span_deg: float = Field(default=120.0, ge=0.0, le=360.0)
     key_poses: int = Field(default=3, ge=1, le=100)
     jitter: float = Field(default=0.03, ge=0.0)  # m of random aim offset
+    # key poses are redrawn until the environment fills this fraction of the view (0: accept any)
+    min_view_coverage: float = Field(default=0.97, ge=0.0, le=1.0)
 
     @model_validator(mode="after")
     def _ranges(self):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import trimesh
+from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from pegasus_gen.assets import AssetLibrary, AssetManifest, DropRegion, save_asset
@@ -20,9 +21,11 @@ from pegasus_gen.splats import SplatCloud, concatenate
 from pegasus_gen.surface_splats import surface_splats
 from pegasus_gen.synthetic import plane, wood_texture
 
-DEMO_VERSION = 3
+DEMO_VERSION = 4
 OBJECT_SPACING = 0.0015  # m between splats on objects
 ENV_SPACING = 0.002
+TABLE_HEIGHT = 0.75  # m, table top above the room floor
+SHELF_HEIGHT = 1.1
 
 # name, obj_id, (bottom radius, top radius, height) m, label colours (bg, band, text), brand, flavour
 CUPS = [
@@ -178,14 +181,72 @@ def _clutter(rng: np.random.Generator, positions) -> tuple[list[SplatCloud], lis
     return splats, meshes
 
 
-def _plane_env(name: str, size, texture, rng, clutter_xy, extra=()):
+def _quad(size_x: float, size_y: float, T: np.ndarray) -> trimesh.Trimesh:
+    """The rectangle |x| <= size_x/2, |y| <= size_y/2 (z = 0, facing +z) moved by T [4, 4]."""
+    hx, hy = size_x / 2, size_y / 2
+    quad = trimesh.Trimesh([[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0]], [[0, 1, 2], [0, 2, 3]])
+    return quad.apply_transform(T)
+
+
+def plaster_texture(u, v):
+    """Off-white painted wall with a faint mottling."""
+    mottle = 0.03 * np.sin(9.1 * u + 2.0 * np.sin(5.3 * v)) * np.sin(7.7 * v)
+    return np.clip(np.array([0.86, 0.85, 0.8]) + mottle[:, None], 0, 1)
+
+
+def concrete_texture(u, v):
+    """Grey floor with broad blotches."""
+    blotch = 0.06 * np.sin(3.1 * u + np.sin(2.3 * v)) * np.cos(2.7 * v - 0.5 * u)
+    return np.clip(np.array([0.55, 0.54, 0.52]) + blotch[:, None], 0, 1)
+
+
+ROOM_HALF = 2.0  # m: the room around each demo support is 4 m x 4 m
+ROOM_HEIGHT = 2.6
+ROOM_SPACING = 0.03  # coarse splats: the room is background
+
+
+def _room(rng: np.random.Generator, floor_z: float, floor_texture) -> tuple[SplatCloud, trimesh.Trimesh]:
+    """Floor and four walls around the support, so that no camera looks into the void (coarse splats)."""
+    parts = [(ROOM_HALF * 2, ROOM_HALF * 2, np.eye(4), floor_texture)]
+    for k in range(4):  # walls facing inwards
+        T = np.eye(4)
+        yaw = k * np.pi / 2
+        T[:3, :3] = Rotation.from_euler("xz", [-np.pi / 2, yaw]).as_matrix()
+        T[:3, 3] = [ROOM_HALF * np.sin(yaw), -ROOM_HALF * np.cos(yaw), ROOM_HEIGHT / 2]
+        parts.append((ROOM_HALF * 2, ROOM_HEIGHT, T, plaster_texture))
+    splats, meshes = [], []
+    lift = np.eye(4)
+    lift[2, 3] = floor_z
+    for sx, sy, T, texture in parts:
+        n = int(sx * sy / ROOM_SPACING**2)
+        splats.append(plane(sx, sy, n, texture, rng, sh_degree=0).transformed(lift @ T))
+        meshes.append(_quad(sx, sy, lift @ T))
+    return concatenate(splats), trimesh.util.concatenate(meshes)
+
+
+def _table_legs(rng: np.random.Generator, size, height: float) -> tuple[SplatCloud, trimesh.Trimesh]:
+    legs = []
+    for x in (-1, 1):
+        for y in (-1, 1):
+            leg = trimesh.creation.box((0.05, 0.05, height))
+            leg.apply_translation([x * (size[0] / 2 - 0.06), y * (size[1] / 2 - 0.06), -height / 2 - 0.001])
+            leg.visual.vertex_colors = np.tile([110, 75, 45, 255], (len(leg.vertices), 1))
+            legs.append(leg)
+    mesh = trimesh.util.concatenate(legs)
+    return mesh_to_splats(mesh, rng, spacing=0.006), mesh
+
+
+def _plane_env(name: str, size, texture, rng, clutter_xy, room_floor_z: float, room_floor_texture, extra=()):
+    """A textured support rectangle of ``size`` (m) at z = 0 with clutter, ``extra`` (splats, mesh) parts,
+    inside a room whose floor is at ``room_floor_z``."""
     sx, sy = size
     floor = plane(sx, sy, int(sx * sy / ENV_SPACING**2), texture, rng, sh_degree=0)
     clutter_splats, clutter_meshes = _clutter(rng, clutter_xy)
-    support = trimesh.Trimesh([[-sx / 2, -sy / 2, 0], [sx / 2, -sy / 2, 0], [sx / 2, sy / 2, 0], [-sx / 2, sy / 2, 0]],
-                              [[0, 1, 2], [0, 2, 3]])
-    splats = concatenate([floor, *clutter_splats, *[e[0] for e in extra]]).with_label(0)
-    mesh = trimesh.util.concatenate([support, *clutter_meshes, *[e[1] for e in extra]])
+    room = _room(rng, room_floor_z, room_floor_texture)
+    parts = [room, *extra]
+    support = _quad(sx, sy, np.eye(4))
+    splats = concatenate([floor, *clutter_splats, *[e[0] for e in parts]]).with_label(0)
+    mesh = trimesh.util.concatenate([support, *clutter_meshes, *[e[1] for e in parts]])
     margin = 0.2
     region = DropRegion(x_min=-sx / 2 * (1 - margin), x_max=sx / 2 * (1 - margin),
                         y_min=-sy / 2 * (1 - margin), y_max=sy / 2 * (1 - margin))
@@ -213,13 +274,17 @@ def shelf_texture(u, v):
 
 def demo_environments(rng: np.random.Generator):
     """Yields (splats, mesh, manifest) for each demo environment (200k-600k splats each)."""
-    yield _plane_env("wooden_table", (1.2, 0.8), wood_texture, rng, [(0.45, 0.28), (-0.48, -0.25)])
-    yield _plane_env("tiled_floor", (1.5, 1.0), tile_texture, rng, [(0.6, -0.38), (-0.62, 0.4)])
+    yield _plane_env("wooden_table", (1.2, 0.8), wood_texture, rng, [(0.45, 0.28), (-0.48, -0.25)],
+                     -TABLE_HEIGHT, concrete_texture, extra=[_table_legs(rng, (1.2, 0.8), TABLE_HEIGHT)])
+    # the room floor continues the tiles a hair below the support, coarser
+    yield _plane_env("tiled_floor", (1.5, 1.0), tile_texture, rng, [(0.6, -0.38), (-0.62, 0.4)], -0.002,
+                     tile_texture)
     back = trimesh.creation.box((1.0, 0.02, 0.4))
     back.apply_translation([0, 0.21, 0.2])
     back.visual.vertex_colors = np.tile([235, 235, 230, 255], (len(back.vertices), 1))
     back_splats = mesh_to_splats(back, rng, spacing=ENV_SPACING)
-    yield _plane_env("store_shelf", (1.0, 0.4), shelf_texture, rng, [(0.42, 0.1)], extra=[(back_splats, back)])
+    yield _plane_env("store_shelf", (1.0, 0.4), shelf_texture, rng, [(0.42, 0.1)], -SHELF_HEIGHT, concrete_texture,
+                     extra=[(back_splats, back)])
 
 
 def build_demo_library(library: AssetLibrary, seed: int = 0, force: bool = False) -> list[str]:

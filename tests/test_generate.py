@@ -1,6 +1,9 @@
 """End to end: a small BOP dataset, read back with a minimal reader written here from the BOP spec."""
 
 import json
+import subprocess
+import sys
+import time
 
 import cv2
 import numpy as np
@@ -83,15 +86,50 @@ def test_dataset_reads_back_and_models_cover_their_masks(library, tmp_path):
     assert checked >= 4
 
 
-def test_resume_after_a_kill_gives_the_same_dataset(library, tmp_path):
-    full = generate(config(library, tmp_path / "full"))
-    part = generate(config(library, tmp_path / "part", "scenes=1"))
-    (part / "train_pbr" / ".000001.tmp" / "rgb").mkdir(parents=True)  # debris of a killed run
-    generate(config(library, tmp_path / "part"))
-    assert not (part / "train_pbr" / ".000001.tmp").exists()
-    for scene in ("000000", "000001"):
-        for name in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json"):
-            assert (full / "train_pbr" / scene / name).read_text() == (part / "train_pbr" / scene / name).read_text()
+def dataset_files(root):
+    """{relative path: bytes} of every file of a dataset."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_resume_after_kill_9_gives_the_same_dataset(library, tmp_path):
+    """A real generator process killed with SIGKILL mid-run, then resumed, equals an uninterrupted run."""
+    args = [f"output={tmp_path / 'killed'}", f"library={library.root}", "scenes=3", "frames_per_scene=2",
+            "camera.width=160", "camera.height=120", "device=cpu", "environments=[wooden_table]",
+            "objects=[{asset: 1, count: [1, 1]}, {asset: 7, count: [1, 1]}]"]
+    proc = subprocess.Popen([sys.executable, "-m", "pegasus_gen.cli", "generate", *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    split = tmp_path / "killed" / "train_pbr"
+    deadline = time.monotonic() + 120
+    while not (split / "000000").is_dir() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.kill()  # SIGKILL: no cleanup runs
+    proc.wait()
+    assert (split / "000000").is_dir() and not (split / "000002").exists()  # killed mid-run
+    resumed = generate(load_config(None, args), resume=True)
+    full = generate(load_config(None, [a.replace("killed", "full") for a in args]))
+    assert not [p for p in split.iterdir() if p.name.startswith(".")]  # no debris left
+    got, want = dataset_files(resumed), dataset_files(full)
+    assert sorted(got) == sorted(want)
+    assert [k for k in want if got[k] != want[k]] == []
+
+
+def test_resume_refuses_another_config_and_plain_rerun_refuses_a_full_folder(library, tmp_path):
+    out = generate(config(library, tmp_path / "ds", "scenes=1", "frames_per_scene=1"))
+    before = dataset_files(out)
+    with pytest.raises(PegasusError, match="not empty; pass --resume"):
+        generate(config(library, out, "scenes=2", "frames_per_scene=1"))
+    with pytest.raises(PegasusError, match="different config .*seed"):
+        generate(config(library, out, "scenes=1", "frames_per_scene=1", "seed=5"), resume=True)
+    assert dataset_files(out) == before
+    generate(config(library, out, "scenes=1", "frames_per_scene=1", "workers=2"), resume=True)  # workers may differ
+    assert dataset_files(out) == before
+
+
+def test_workers_give_the_same_dataset_as_one_process(library, tmp_path):
+    one = generate(config(library, tmp_path / "one", "scenes=2", "frames_per_scene=1"))
+    two = generate(config(library, tmp_path / "two", "scenes=2", "frames_per_scene=1", "workers=2"))
+    got, want = dataset_files(two), dataset_files(one)
+    assert sorted(got) == sorted(want) and [k for k in want if got[k] != want[k]] == []
 
 
 def test_missing_asset_leaves_the_output_untouched(library, tmp_path):

@@ -1,0 +1,49 @@
+"""Exact z-depth images of triangle meshes by ray casting (Open3D's Embree scene), independent of the splats.
+
+Used where a mesh is the truth: checking a dataset's masks and depth against its models (validate) and
+measuring how much of a camera's view an environment fills (trajectories).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import trimesh
+
+
+class MeshRaycaster:
+    """A triangle mesh prepared once for casting many camera views at it."""
+
+    def __init__(self, mesh: trimesh.Trimesh):
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+                                 o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+
+    def depth(self, K: np.ndarray, T_cam_mesh: np.ndarray, width: int, height: int) -> np.ndarray:
+        """[H, W] z-depth (mesh units) seen by the pinhole camera ``K`` [3, 3] at ``T_cam_mesh`` [4, 4] (mesh
+        frame -> camera, same units); 0 where a pixel's ray misses the mesh. One ray per pixel centre."""
+        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+        dirs_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(-1, 3)
+        R_mesh_cam = np.asarray(T_cam_mesh)[:3, :3].T
+        origin = -R_mesh_cam @ np.asarray(T_cam_mesh)[:3, 3]
+        # directions have unit z in the camera, so the ray parameter of a hit is its z-depth
+        hits = self.first_hits(origin, dirs_cam @ R_mesh_cam.T)
+        return np.where(np.isfinite(hits), hits, 0.0).reshape(height, width)
+
+    def first_hits(self, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """[N] ray parameter t of the first hit of each ray origin [3] + t directions [N, 3]; inf on a miss
+        (with unit directions, t is the distance)."""
+        rays = np.concatenate([np.broadcast_to(origin, directions.shape), directions], 1).astype(np.float32)
+        return self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+
+    def view_coverage(self, K: np.ndarray, T_cam_world: np.ndarray, width: int, height: int,
+                      samples: tuple[int, int] = (16, 12)) -> float:
+        """Fraction of the image (sampled on a ``samples`` = (columns, rows) grid) in which the mesh (world
+        frame) is seen: 1.0 when an environment fills the whole view."""
+        cols, rows = samples
+        K_coarse = np.array(K, dtype=np.float64)
+        K_coarse[0] *= cols / width
+        K_coarse[1] *= rows / height
+        K_coarse[0, 2] += 0.5 * cols / width - 0.5  # keep pixel centres at integer coordinates
+        K_coarse[1, 2] += 0.5 * rows / height - 0.5
+        return float((self.depth(K_coarse, T_cam_world, cols, rows) > 0).mean())

@@ -1,0 +1,32 @@
+"""Ray-cast mesh depth against closed-form geometry, and the view coverage used to aim cameras."""
+
+import numpy as np
+import trimesh
+
+from pegasus_gen.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.raycast import MeshRaycaster
+
+
+def test_depth_of_a_tilted_plane_is_exact():
+    plane = trimesh.Trimesh([[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], [[0, 1, 2], [0, 2, 3]])
+    K = intrinsics_from_fov(64, 48, 60)
+    T = look_at([0.3, -1.2, 0.9], [0.1, 0.2, 0.0])
+    depth = MeshRaycaster(plane).depth(K, T, 64, 48)
+    # closed form: the ray through pixel (u, v) with unit z in the camera meets z_world = 0 at depth d
+    u, v = np.meshgrid(np.arange(64), np.arange(48))
+    d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones(u.shape)], -1)
+    R_wc = T[:3, :3].T
+    eye = -R_wc @ T[:3, 3]
+    d_world = d_cam @ R_wc.T
+    expected = -eye[2] / d_world[..., 2]
+    expected = np.where(expected > 0, expected, 0)
+    np.testing.assert_allclose(depth, expected, rtol=1e-5, atol=1e-5)
+
+
+def test_view_coverage_is_full_over_a_table_and_partial_towards_its_edge():
+    table = trimesh.creation.box((1.2, 0.8, 0.02))
+    raycaster = MeshRaycaster(table)
+    K = intrinsics_from_fov(640, 480, 60)
+    assert raycaster.view_coverage(K, look_at([0.0, -0.3, 0.5], [0, 0, 0]), 640, 480) == 1.0
+    grazing = raycaster.view_coverage(K, look_at([0.0, -0.2, 0.15], [0, 0.6, 0.1]), 640, 480)
+    assert 0.05 < grazing < 0.7  # the far edge of the table is in view
