@@ -1,0 +1,229 @@
+"""Training data for DOPE: BOP datasets (and DOPE/NDDS json folders) -> images with 9 keypoints per
+instance -> augmented crops with belief and affinity targets.
+
+A sample is one image and its instances of the target objects: the 9 DOPE keypoints (cuboid corners of
+the model's bounding box in DOPE's order, then its centre) projected with the GT pose and K, in pixels.
+Instances seen less than ``min_visibility`` (BOP visib_fract) are dropped: their keypoints do not
+become targets.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from dope_training.cuboid import cuboid_points, project_points
+from dope_training.targets import make_targets
+from pegasus_gen.errors import PegasusError
+
+IMAGE_EXTENSIONS = (".jpg", ".png", ".jpeg")
+
+
+@dataclass
+class Sample:
+    """One image: its path, K [3, 3] and per instance the 9 keypoints [9, 2] (px), obj_id and visibility."""
+
+    image: Path
+    K: np.ndarray
+    keypoints: list[np.ndarray] = field(default_factory=list)
+    obj_ids: list[int] = field(default_factory=list)
+    visibility: list[float] = field(default_factory=list)
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except OSError:
+        raise PegasusError(f"{path}: missing") from None
+    except json.JSONDecodeError as exc:
+        raise PegasusError(f"{path}: not valid JSON ({exc})") from None
+
+
+def model_boxes(root: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """{obj_id: (bbox_min [3], bbox_size [3]) in metres} from a BOP dataset's models/models_info.json."""
+    info = _read_json(Path(root) / "models" / "models_info.json")
+    return {int(k): (np.array([v["min_x"], v["min_y"], v["min_z"]]) / 1000.0,
+                     np.array([v["size_x"], v["size_y"], v["size_z"]]) / 1000.0) for k, v in info.items()}
+
+
+def object_names(split_dir: Path) -> dict[str, int]:
+    """{name: obj_id} from the scenes' scene_gt_coco.json categories (empty when there are none)."""
+    names = {}
+    for coco in sorted(split_dir.glob("*/scene_gt_coco.json")):
+        for category in _read_json(coco).get("categories", []):
+            names[category["name"]] = int(category["id"])
+    return names
+
+
+def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> list[int]:
+    """obj_ids of ``objects`` given as ids or names; a clear error for an unknown one."""
+    ids = []
+    for obj in objects:
+        if isinstance(obj, str) and not obj.isdigit():
+            if obj not in names:
+                raise PegasusError(f"{where}: no object named {obj!r} (known: {', '.join(sorted(names)) or 'none'})")
+            ids.append(names[obj])
+        else:
+            if int(obj) not in boxes:
+                raise PegasusError(f"{where}: no object with obj_id {obj} (known: {sorted(boxes)})")
+            ids.append(int(obj))
+    return ids
+
+
+def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility: float = 0.1) -> list[Sample]:
+    """Samples of every image of a BOP split holding at least one visible instance of ``objects``
+    (obj_ids or names)."""
+    root = Path(root)
+    split_dir = root / split
+    if not split_dir.is_dir():
+        raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset")
+    boxes = model_boxes(root)
+    wanted = set(resolve_objects(objects, boxes, object_names(split_dir), str(root)))
+    cuboids = {k: cuboid_points(*boxes[k]) for k in wanted}
+    samples = []
+    for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        gt = _read_json(scene / "scene_gt.json")
+        cams = _read_json(scene / "scene_camera.json")
+        infos = _read_json(scene / "scene_gt_info.json")
+        for im_id in sorted(gt, key=int):
+            image = next((scene / "rgb" / f"{int(im_id):06d}{e}" for e in IMAGE_EXTENSIONS
+                          if (scene / "rgb" / f"{int(im_id):06d}{e}").is_file()), None)
+            if image is None:
+                raise PegasusError(f"{scene}/rgb: no image {int(im_id):06d}")
+            sample = Sample(image, np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3))
+            for entry, info in zip(gt[im_id], infos[im_id]):
+                if entry["obj_id"] not in wanted or info["visib_fract"] < min_visibility:
+                    continue
+                T = np.eye(4)
+                T[:3, :3] = np.array(entry["cam_R_m2c"]).reshape(3, 3)
+                T[:3, 3] = np.array(entry["cam_t_m2c"]) / 1000.0
+                sample.keypoints.append(project_points(cuboids[entry["obj_id"]], T, sample.K))
+                sample.obj_ids.append(int(entry["obj_id"]))
+                sample.visibility.append(float(info["visib_fract"]))
+            if sample.keypoints:
+                samples.append(sample)
+    return samples
+
+
+def load_ndds(folder: str | Path, classes, min_visibility: float = 0.1) -> list[Sample]:
+    """Samples from a DOPE/NDDS folder (image + same-name .json with camera_data and objects[].projected_cuboid),
+    keeping objects whose ``class`` is in ``classes``; obj_ids number the classes from 1 in the given order."""
+    folder = Path(folder)
+    ids = {str(c): i + 1 for i, c in enumerate(classes)}
+    samples = []
+    for doc_path in sorted(folder.rglob("*.json")):
+        image = next((doc_path.with_suffix(e) for e in IMAGE_EXTENSIONS if doc_path.with_suffix(e).is_file()), None)
+        doc = _read_json(doc_path)
+        if image is None or "objects" not in doc:
+            continue  # settings files and the like
+        intr = doc.get("camera_data", {}).get("intrinsics", {})
+        K = np.array([[intr.get("fx", 0), 0, intr.get("cx", 0)], [0, intr.get("fy", 0), intr.get("cy", 0)], [0, 0, 1]],
+                     dtype=np.float64)
+        sample = Sample(image, K)
+        for obj in doc["objects"]:
+            points = np.asarray(obj.get("projected_cuboid", []), dtype=np.float64)
+            if obj.get("class") not in ids or points.shape != (9, 2) or obj.get("visibility", 1) < min_visibility:
+                continue
+            sample.keypoints.append(points)
+            sample.obj_ids.append(ids[obj["class"]])
+            sample.visibility.append(float(obj.get("visibility", 1)))
+        if sample.keypoints:
+            samples.append(sample)
+    if not samples:
+        raise PegasusError(f"{folder}: no DOPE/NDDS json with objects of class {', '.join(map(str, classes))}")
+    return samples
+
+
+@dataclass
+class Augment:
+    """Random crop/scale/rotation (one affine warp, constant random-colour borders: no mirrored copies of
+    objects), colour jitter and noise."""
+
+    scale: tuple[float, float] = (0.75, 1.25)  # relative to fitting the image's shorter side into the crop
+    rotation_deg: float = 15.0
+    shift: float = 0.2  # fraction of the crop by which the crop centre moves off the chosen instance
+    brightness: float = 0.25
+    contrast: float = 0.25
+    saturation: float = 0.25
+    hue_deg: float = 6.0
+    noise_std: float = 4.0  # grey levels
+    enabled: bool = True
+
+
+def crop_transform(image_hw: tuple[int, int], size: int, centre: np.ndarray, rng: np.random.Generator,
+                   aug: Augment) -> np.ndarray:
+    """[2, 3] affine map from image pixels to crop pixels: the image's shorter side fitted into ``size``,
+    randomly scaled, rotated about and centred near ``centre`` [2] (px)."""
+    h, w = image_hw
+    base = size / min(h, w)
+    if not aug.enabled:
+        centre = np.array([(w - 1) / 2, (h - 1) / 2])
+        return np.array([[base, 0, (size - 1) / 2 - base * centre[0]], [0, base, (size - 1) / 2 - base * centre[1]]])
+    s = base * rng.uniform(*aug.scale)
+    a = np.radians(rng.uniform(-aug.rotation_deg, aug.rotation_deg))
+    R = s * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    target = (size - 1) / 2 + rng.uniform(-aug.shift, aug.shift, 2) * size
+    return np.concatenate([R, (target - R @ centre)[:, None]], axis=1)
+
+
+def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> np.ndarray:
+    """[H, W, 3] uint8 RGB with random brightness, contrast, saturation, hue and Gaussian noise."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV).astype(np.float32)
+    hsv[..., 0] = (hsv[..., 0] + rng.uniform(-aug.hue_deg, aug.hue_deg) / 2) % 180  # OpenCV hue: 0..180
+    hsv[..., 1] *= 1 + rng.uniform(-aug.saturation, aug.saturation)
+    out = cv2.cvtColor(np.clip(hsv, 0, 255).astype(np.uint8), cv2.COLOR_HSV2RGB).astype(np.float32)
+    mean = out.mean()
+    out = (out - mean) * (1 + rng.uniform(-aug.contrast, aug.contrast)) + mean
+    out = out * (1 + rng.uniform(-aug.brightness, aug.brightness))
+    out += rng.normal(0, aug.noise_std, out.shape)
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+class DopeDataset(torch.utils.data.Dataset):
+    """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [9, S/8, S/8], affinities [16, S/8, S/8]).
+
+    Each item draws its augmentation from a generator seeded by (seed, epoch, index), so runs repeat.
+    """
+
+    def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
+                 stride: int = 8):
+        if size % stride:
+            raise PegasusError(f"input size {size} must be a multiple of the network stride {stride}")
+        self.samples, self.size, self.stride, self.seed = samples, size, stride, seed
+        self.augment = augment or Augment()
+        self.epoch = 0
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def item(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The augmented crop [S, S, 3] uint8 RGB, its keypoints [I, 9, 2] (crop pixels) and the affine
+        [2, 3] from image to crop pixels."""
+        sample = self.samples[index]
+        rng = np.random.default_rng([self.seed, self.epoch, index])
+        image = cv2.imread(str(sample.image), cv2.IMREAD_COLOR)
+        if image is None:
+            raise PegasusError(f"{sample.image}: cannot read the image")
+        image = image[..., ::-1]
+        keypoints = np.stack(sample.keypoints)
+        centre = keypoints[rng.integers(len(keypoints)), 8]
+        M = crop_transform(image.shape[:2], self.size, centre, rng, self.augment)
+        border = tuple(int(v) for v in rng.integers(0, 256, 3)) if self.augment.enabled else (0, 0, 0)
+        crop = cv2.warpAffine(np.ascontiguousarray(image), M, (self.size, self.size), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+        if self.augment.enabled:
+            crop = jitter_colour(crop, rng, self.augment)
+        moved = keypoints @ M[:, :2].T + M[:, 2]
+        return crop, moved, M
+
+    def __getitem__(self, index: int):
+        crop, keypoints, _ = self.item(index)
+        beliefs, affinities = make_targets(keypoints, np.ones(keypoints.shape[:2], bool), self.size, self.size,
+                                           stride=self.stride)
+        image = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1).float() / 255.0
+        return image, torch.from_numpy(beliefs), torch.from_numpy(affinities)

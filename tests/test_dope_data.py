@@ -1,0 +1,106 @@
+"""DOPE training data: targets on the keypoints, BOP samples against the poses, augmentation that
+moves keypoints with the pixels and adds no mirrored borders."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from dope_training.data import Augment, DopeDataset, Sample, load_bop
+from dope_training.targets import cell_centres, make_targets
+from pegasus_gen.assets import AssetLibrary
+from pegasus_gen.config import load_config
+from pegasus_gen.demo_assets import build_demo_library
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.generate import generate
+
+
+def test_belief_peaks_on_the_keypoint_and_affinities_point_to_the_centroid():
+    rng = np.random.default_rng(3)
+    points = rng.uniform(20, 180, (2, 9, 2))
+    beliefs, affinities = make_targets(points, np.ones((2, 9), bool), 200, 200, stride=8)
+    assert beliefs.shape == (9, 25, 25) and affinities.shape == (16, 25, 25)
+    cx, cy = cell_centres(200, 200, 8)
+    for k in range(9):
+        for inst in points:  # each keypoint is a local peak; the 3x3 weighted mean around it lands on it
+            i, j = int(round((inst[k, 1] + 0.5) / 8 - 0.5)), int(round((inst[k, 0] + 0.5) / 8 - 0.5))
+            window = beliefs[k, i - 1:i + 2, j - 1:j + 2]
+            assert beliefs[k, i, j] == window.max() >= np.exp(-1) - 1e-6  # at worst half a cell off in x and y
+            mean = [(window * c[i - 1:i + 2, j - 1:j + 2]).sum() / window.sum() for c in (cx, cy)]
+            assert np.hypot(*(np.array(mean) - inst[k])) < 2.0
+    last = points[1]  # later instances win where fields overlap
+    for k in range(8):
+        near = np.hypot(cx - last[k, 0], cy - last[k, 1]) <= 8
+        want = (last[8] - last[k]) / np.linalg.norm(last[8] - last[k])
+        got = np.stack([affinities[2 * k][near], affinities[2 * k + 1][near]], 1)
+        np.testing.assert_allclose(got, np.tile(want, (len(got), 1)), atol=1e-6)
+        assert not affinities[2 * k][~near & (np.hypot(cx - points[0, k, 0], cy - points[0, k, 1]) > 8)].any()
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
+    build_demo_library(lib)
+    out = tmp_path_factory.mktemp("ds") / "ds"
+    return generate(load_config(None, [f"output={out}", f"library={lib.root}", "scenes=1", "frames_per_scene=2",
+                                       "camera.width=320", "camera.height=240", "device=cpu",
+                                       "environments=[wooden_table]",
+                                       "objects=[{asset: 1, count: [1, 1]}, {asset: 7, count: [1, 2]}]"]))
+
+
+def test_bop_samples_put_keypoints_on_the_posed_model_box(dataset):
+    samples = load_bop(dataset, ["noodle_cup_red"], min_visibility=0.0)
+    assert len(samples) == 2 and all(s.obj_ids == [1] for s in samples)
+    scene = dataset / "train_pbr" / "000000"
+    gt = json.loads((scene / "scene_gt.json").read_text())
+    info = json.loads((dataset / "models" / "models_info.json").read_text())["1"]
+    centre_mm = np.array([info[f"min_{a}"] + info[f"size_{a}"] / 2 for a in "xyz"])
+    for im_id, sample in enumerate(samples):
+        entry = next(e for e in gt[str(im_id)] if e["obj_id"] == 1)
+        p = np.array(entry["cam_R_m2c"]).reshape(3, 3) @ centre_mm + entry["cam_t_m2c"]
+        np.testing.assert_allclose(sample.keypoints[0][8], (sample.K @ p)[:2] / p[2], atol=1e-6)
+        gt_idx = [e["obj_id"] for e in gt[str(im_id)]].index(1)
+        mask = cv2.imread(str(scene / "mask" / f"{im_id:06d}_{gt_idx:06d}.png"), 0) > 0
+        hull = cv2.convexHull(sample.keypoints[0][:8].astype(np.float32))
+        ys, xs = np.nonzero(mask)
+        inside = [cv2.pointPolygonTest(hull, (float(x), float(y)), True) > -1.5 for x, y in zip(xs, ys)]
+        assert np.mean(inside) > 0.995  # the model's box encloses its silhouette
+
+
+def test_visibility_filter_and_unknown_objects(dataset):
+    everything = load_bop(dataset, [1, 7], min_visibility=0.0)
+    visible = load_bop(dataset, [1, 7], min_visibility=0.9)
+    assert sum(map(len, (s.visibility for s in visible))) <= sum(map(len, (s.visibility for s in everything)))
+    assert all(v >= 0.9 for s in visible for v in s.visibility)
+    with pytest.raises(PegasusError, match="no object named 'mug'"):
+        load_bop(dataset, ["mug"])
+    with pytest.raises(PegasusError, match="no object with obj_id 42"):
+        load_bop(dataset, [42])
+
+
+def test_augmented_crops_carry_their_keypoints_and_plain_borders(tmp_path):
+    rng = np.random.default_rng(0)
+    image = np.full((240, 320, 3), 40, np.uint8)
+    keypoints = rng.uniform(30, [290, 210], (9, 2))
+    for x, y in keypoints:
+        cv2.circle(image, (int(round(x)), int(round(y))), 3, (255, 255, 255), -1)
+    cv2.imwrite(str(tmp_path / "im.png"), image)
+    sample = Sample(tmp_path / "im.png", np.eye(3), [keypoints], [1], [1.0])
+    still = Augment(brightness=0, contrast=0, saturation=0, hue_deg=0, noise_std=0, rotation_deg=40)
+    data = DopeDataset([sample], size=160, augment=still)
+    for epoch in range(5):
+        data.epoch = epoch
+        crop, moved, M = data.item(0)
+        moved = moved[0]
+        inside = (moved >= 2).all(1) & (moved < 158).all(1)
+        values = [crop[int(round(y)), int(round(x))].min() for x, y in moved[inside]]
+        assert inside.sum() >= 3 and min(values) > 200  # each keypoint still sits on its dot
+        source = cv2.warpAffine(np.full((240, 320), 255, np.uint8), M, (160, 160))
+        outside = source == 0
+        if outside.any():  # beyond the source image: one plain colour, never a mirrored copy
+            assert len(np.unique(crop[outside].reshape(-1, 3), axis=0)) == 1
+    image_t, beliefs, affinities = data[0]
+    assert tuple(image_t.shape) == (3, 160, 160) and tuple(beliefs.shape) == (9, 20, 20)
+    assert float(image_t.max()) <= 1.0 and float(beliefs.max()) > 0.5
+
