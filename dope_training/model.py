@@ -1,0 +1,125 @@
+"""The DOPE network (Tremblay et al. 2018) and a light variant for CPU training.
+
+``full``: VGG19 conv1_1..conv4_2 (stride 8) laid out like torchvision's ``vgg19().features[:23]`` so its
+ImageNet weights load, then 512->256->128 3x3 convs; six stages, each with a belief branch (9 maps) and
+an affinity branch (16 maps); stage 1 from the features (three 3x3 convs, 1x1 to 512, 1x1 out), stages
+2-6 from concat(beliefs, affinities, features) = 153 channels (five 7x7 convs, 1x1, 1x1 out).
+``light``: the same structure at a quarter of the trunk width, 64-channel stages with 3x3 instead of
+7x7 kernels and 3 stages; about 60x fewer multiply-adds, so a few hundred steps train on a laptop CPU
+in minutes. Normalisation (ImageNet mean/std) happens inside the network: its input is RGB in 0..1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+VGG19_TO_CONV4_2 = (64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512)  # features[:23]
+
+
+@dataclass
+class ModelConfig:
+    """Everything needed to rebuild a network; stored in checkpoints and ONNX metadata."""
+
+    variant: str = "full"
+    stages: int = 6
+    width_divisor: int = 1  # trunk channels = VGG's / this
+    stage_channels: int = 128
+    late_kernel: int = 7  # kernel of stages 2..n
+    mean: tuple[float, float, float] = IMAGENET_MEAN
+    std: tuple[float, float, float] = IMAGENET_STD
+
+    @staticmethod
+    def of(variant: str) -> "ModelConfig":
+        if variant == "full":
+            return ModelConfig()
+        if variant == "light":
+            return ModelConfig(variant="light", stages=3, width_divisor=4, stage_channels=64, late_kernel=3)
+        raise ValueError(f"unknown DOPE variant {variant!r} (full or light)")
+
+
+def _conv(cin: int, cout: int, k: int, relu: bool = True) -> list[nn.Module]:
+    return [nn.Conv2d(cin, cout, k, padding=k // 2), *([nn.ReLU(inplace=True)] if relu else [])]
+
+
+def _branch(cin: int, cout: int, channels: int, first: bool, late_kernel: int) -> nn.Sequential:
+    if first:
+        layers = _conv(cin, channels, 3) + _conv(channels, channels, 3) + _conv(channels, channels, 3)
+        layers += _conv(channels, 4 * channels, 1) + _conv(4 * channels, cout, 1, relu=False)
+    else:
+        layers = _conv(cin, channels, late_kernel)
+        for _ in range(4):
+            layers += _conv(channels, channels, late_kernel)
+        layers += _conv(channels, channels, 1) + _conv(channels, cout, 1, relu=False)
+    return nn.Sequential(*layers)
+
+
+class DopeNetwork(nn.Module):
+    """image [B, 3, H, W] RGB 0..1 (H, W multiples of 8) -> list over stages of
+    (beliefs [B, 9, H/8, W/8], affinities [B, 16, H/8, W/8])."""
+
+    def __init__(self, config: ModelConfig | None = None):
+        super().__init__()
+        self.config = config or ModelConfig()
+        c = self.config
+        layers, cin = [], 3
+        for v in VGG19_TO_CONV4_2:
+            if v == "M":
+                layers.append(nn.MaxPool2d(2, 2))
+            else:
+                layers += _conv(cin, v // c.width_divisor, 3)
+                cin = v // c.width_divisor
+        self.features = nn.Sequential(*layers)  # indices as torchvision's vgg19().features[:23]
+        self.reduce = nn.Sequential(*_conv(cin, 256 // c.width_divisor, 3),
+                                    *_conv(256 // c.width_divisor, 128 // c.width_divisor, 3))
+        feat = 128 // c.width_divisor
+        self.beliefs = nn.ModuleList(
+            [_branch(feat if s == 0 else feat + 25, 9, c.stage_channels, s == 0, c.late_kernel) for s in range(c.stages)])
+        self.affinities = nn.ModuleList(
+            [_branch(feat if s == 0 else feat + 25, 16, c.stage_channels, s == 0, c.late_kernel) for s in range(c.stages)])
+        self.register_buffer("mean", torch.tensor(c.mean).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(c.std).view(1, 3, 1, 1), persistent=False)
+
+    def forward(self, image: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        features = self.reduce(self.features((image - self.mean) / self.std))
+        x, outputs = features, []
+        for belief, affinity in zip(self.beliefs, self.affinities):
+            b, a = belief(x), affinity(x)
+            outputs.append((b, a))
+            x = torch.cat([b, a, features], dim=1)
+        return outputs
+
+
+def build_model(config: dict | ModelConfig) -> DopeNetwork:
+    """A network from a ModelConfig or its dict (as stored in a checkpoint)."""
+    if isinstance(config, dict):
+        config = ModelConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
+    return DopeNetwork(config)
+
+
+def model_config(model: DopeNetwork) -> dict:
+    return asdict(model.config)
+
+
+def load_vgg19_weights(model: DopeNetwork, path) -> bool:
+    """Copy ImageNet VGG19 weights (torchvision's ``vgg19-*.pth`` state dict, a local file; never downloaded)
+    into the full model's trunk. Returns False when the file is absent."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        return False
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    trunk = {k[len("features."):]: v for k, v in state.items()
+             if k.startswith("features.") and int(k.split(".")[1]) < len(model.features)}
+    model.features.load_state_dict(trunk)
+    return True
+
+
+def dope_loss(outputs, beliefs: torch.Tensor, affinities: torch.Tensor) -> torch.Tensor:
+    """Sum over stages of MSE(beliefs) + MSE(affinities); targets [B, 9|16, h, w]."""
+    return sum(nn.functional.mse_loss(b, beliefs) + nn.functional.mse_loss(a, affinities) for b, a in outputs)

@@ -1,0 +1,61 @@
+"""The DOPE network: stride-8 outputs of both variants, the original's size, VGG19 weights loading by
+torchvision's layout, the loss, and a light model that learns."""
+
+import numpy as np
+import torch
+
+from dope_training.model import DopeNetwork, ModelConfig, build_model, dope_loss, load_vgg19_weights, model_config
+
+
+def test_outputs_are_stride_8_with_9_beliefs_and_16_affinities():
+    for variant, stages in (("full", 6), ("light", 3)):
+        model = DopeNetwork(ModelConfig.of(variant)).eval()
+        with torch.no_grad():
+            outputs = model(torch.rand(2, 3, 64, 96))
+        assert len(outputs) == stages
+        assert all(tuple(b.shape) == (2, 9, 8, 12) and tuple(a.shape) == (2, 16, 8, 12) for b, a in outputs)
+
+
+def test_full_model_has_the_original_size_and_rebuilds_from_its_config():
+    model = DopeNetwork(ModelConfig.of("full"))
+    params = sum(p.numel() for p in model.parameters())
+    # VGG19 to conv4_2: 7.6M; each 7x7 stage: ~4M per branch; stage 1 ~0.6M per branch -> ~51M in all
+    assert 45e6 < params < 56e6, params
+    light = build_model(model_config(DopeNetwork(ModelConfig.of("light"))))
+    assert sum(p.numel() for p in light.parameters()) < params / 20
+
+
+def test_vgg19_weights_load_from_a_torchvision_style_state_dict(tmp_path):
+    model = DopeNetwork(ModelConfig.of("full"))
+    donor = DopeNetwork(ModelConfig.of("full"))
+    state = {f"features.{k}": v for k, v in donor.features.state_dict().items()}
+    state["features.25.weight"] = torch.zeros(512, 512, 3, 3)  # conv4_3 and beyond: not part of DOPE
+    state["classifier.0.weight"] = torch.zeros(4096, 25088)
+    torch.save(state, tmp_path / "vgg19-dcbb9e9d.pth")
+    assert load_vgg19_weights(model, tmp_path / "vgg19-dcbb9e9d.pth")
+    for a, b in zip(model.features.parameters(), donor.features.parameters()):
+        assert torch.equal(a, b)
+    assert not load_vgg19_weights(model, tmp_path / "absent.pth")
+
+
+def test_loss_is_zero_only_for_perfect_outputs_and_the_light_model_learns():
+    torch.manual_seed(0)
+    beliefs, affinities = torch.rand(2, 9, 8, 8), torch.rand(2, 16, 8, 8) * 2 - 1
+    assert dope_loss([(beliefs, affinities)] * 3, beliefs, affinities).item() == 0.0
+    from dope_training.targets import make_targets
+
+    kp = np.random.default_rng(0).uniform(8, 56, (2, 1, 9, 2))
+    targets = [make_targets(k, np.ones((1, 9), bool), 64, 64) for k in kp]
+    beliefs = torch.from_numpy(np.stack([t[0] for t in targets]))
+    affinities = torch.from_numpy(np.stack([t[1] for t in targets]))
+    model = DopeNetwork(ModelConfig.of("light"))
+    images = torch.rand(2, 3, 64, 64)
+    optimiser = torch.optim.Adam(model.parameters(), 1e-3)
+    losses = []
+    for _ in range(80):
+        loss = dope_loss(model(images), beliefs, affinities)
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        losses.append(loss.item())
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
