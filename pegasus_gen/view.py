@@ -90,12 +90,13 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
             image = _rgb(scene, i)
             K = np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3)
             caption = []
+            infos = gt_info.get(im_id)
             for gt_idx, entry in enumerate(gt[im_id]):
                 T = np.eye(4)
                 T[:3, :3] = np.array(entry["cam_R_m2c"]).reshape(3, 3)
                 T[:3, 3] = np.array(entry["cam_t_m2c"]) / 1000
                 obj_id = int(entry["obj_id"])
-                fract = gt_info.get(im_id, [{}] * len(gt[im_id]))[gt_idx].get("visib_fract")
+                fract = infos[gt_idx]["visib_fract"] if infos else None
                 label = f"{obj_id}" + (f" {fract:.0%}" if fract is not None else "")
                 caption.append(f"obj {label}")
                 bbox_min, bbox_size = boxes.get(obj_id, (np.zeros(3), np.zeros(3)))
