@@ -12,6 +12,7 @@ in minutes. Normalisation (ImageNet mean/std) happens inside the network: its in
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import torch
 from torch import nn
@@ -77,10 +78,9 @@ class DopeNetwork(nn.Module):
         self.reduce = nn.Sequential(*_conv(cin, 256 // c.width_divisor, 3),
                                     *_conv(256 // c.width_divisor, 128 // c.width_divisor, 3))
         feat = 128 // c.width_divisor
-        self.beliefs = nn.ModuleList(
-            [_branch(feat if s == 0 else feat + 25, 9, c.stage_channels, s == 0, c.late_kernel) for s in range(c.stages)])
-        self.affinities = nn.ModuleList(
-            [_branch(feat if s == 0 else feat + 25, 16, c.stage_channels, s == 0, c.late_kernel) for s in range(c.stages)])
+        self.beliefs, self.affinities = (
+            nn.ModuleList([_branch(feat if s == 0 else feat + 25, out, c.stage_channels, s == 0, c.late_kernel)
+                           for s in range(c.stages)]) for out in (9, 16))
         self.register_buffer("mean", torch.tensor(c.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(c.std).view(1, 3, 1, 1), persistent=False)
 
@@ -105,13 +105,19 @@ def model_config(model: DopeNetwork) -> dict:
     return asdict(model.config)
 
 
-def load_vgg19_weights(model: DopeNetwork, path) -> bool:
-    """Copy ImageNet VGG19 weights (torchvision's ``vgg19-*.pth`` state dict, a local file; never downloaded)
-    into the full model's trunk. Returns False when the file is absent."""
-    from pathlib import Path
+def vgg19_weights_path() -> Path | None:
+    """torchvision's VGG19 checkpoint (``vgg19-*.pth``, the first by name) in the torch hub cache, if any."""
+    return min((Path(torch.hub.get_dir()) / "checkpoints").glob("vgg19-*.pth"), default=None)
 
-    path = Path(path)
-    if not path.is_file():
+
+def load_vgg19_weights(model: DopeNetwork, path=None) -> bool:
+    """Copy ImageNet VGG19 weights (torchvision's ``vgg19-*.pth`` state dict: ``features.N.weight/bias``) into
+    the full model's trunk, from ``path`` or else from the torch hub cache; never downloads. Returns False
+    when there is no such file."""
+    if model.config.width_divisor != 1:
+        raise ValueError(f"VGG19 weights fit only the full trunk, not the {model.config.variant!r} variant")
+    path = Path(path) if path is not None else vgg19_weights_path()
+    if path is None or not path.is_file():
         return False
     state = torch.load(path, map_location="cpu", weights_only=True)
     trunk = {k[len("features."):]: v for k, v in state.items()

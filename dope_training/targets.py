@@ -1,6 +1,6 @@
 """DOPE's training targets at the network's output stride: belief maps and affinity fields.
 
-Map convention (used by the decoder as its exact inverse): output cell (i, j) covers input pixels
+Map convention (``cells_to_pixels``; the decoder uses it as the exact inverse): output cell (i, j) covers input pixels
 [j*s, (j+1)*s) x [i*s, (i+1)*s); its centre is at input pixel ((j + 0.5) s - 0.5, (i + 0.5) s - 0.5)
 with pixel centres at integer coordinates (OpenCV).
 """
@@ -13,12 +13,15 @@ SIGMA_PX = 4.0  # belief Gaussian std in input pixels (half a map cell at stride
 AFFINITY_RADIUS_PX = 8.0  # cells whose centre lies this close to a corner carry its affinity vector
 
 
+def cells_to_pixels(cells, stride: int) -> np.ndarray:
+    """Input-pixel coordinates of (fractional) output-cell coordinates, any shape: (c + 0.5) s - 0.5."""
+    return (np.asarray(cells, dtype=np.float64) + 0.5) * stride - 0.5
+
+
 def cell_centres(height: int, width: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """x, y [H/s, W/s]: input-pixel coordinates of the output cells' centres."""
-    h, w = height // stride, width // stride
-    x = (np.arange(w) + 0.5) * stride - 0.5
-    y = (np.arange(h) + 0.5) * stride - 0.5
-    return np.meshgrid(x, y)
+    return np.meshgrid(cells_to_pixels(np.arange(width // stride), stride),
+                       cells_to_pixels(np.arange(height // stride), stride))
 
 
 def make_targets(keypoints: np.ndarray, valid: np.ndarray, height: int, width: int, stride: int = 8,

@@ -1,0 +1,108 @@
+"""Object instances from DOPE's output maps (no network): belief peaks, sub-pixel keypoints, and corners
+grouped to centroids by the affinity fields. After NVlabs/Deep_Object_Pose ``detector.py``, with this
+stack's map convention.
+
+Peaks: a copy of each belief map blurred with a Gaussian of ``blur_cells`` cells serves only to find
+them: a peak is a cell of the blurred map >= its 4 neighbours (on a tie the right/lower cell wins, so a
+two-cell plateau gives one peak) and > ``blur_threshold``; its score is the unblurred belief there,
+kept when > ``min_score``. Its position is the belief-weighted mean of the cell coordinates over the 5x5
+unblurred window around it (negative outputs weigh 0), taken to input pixels by
+``targets.cells_to_pixels``, the exact inverse of how ``make_targets`` lays out the cells; so there is no
+0.4395 offset as upstream. From exact targets this is within 0.26 px of the keypoint (the 0.5-cell
+Gaussian sampled once per cell), except within a cell of the map's border (pulled inward, up to 4 px).
+
+Blur: 1 cell, where upstream uses 3. Our belief targets are 0.5 cell wide; measured on them, with 1 cell
+both of two same-kind keypoints are found from 4 cells (32 px) apart, with 3 cells one of them is lost
+in half the cases at 7 cells (56 px) and nearly always below. The 5x5 window (upstream's) lets same-kind
+keypoints nearer than 5 cells (40 px) pull each other's position (up to 7 px at 4 cells).
+
+Grouping: every centroid peak starts an instance. A corner peak of kind k may join an instance when the
+unit vector from the corner to its centroid differs from the affinity of kind k read at the peak cell
+(normalised) by a norm < ``max_angle_error`` (0.5: about 29 degrees). Of these pairs the nearest join
+first, each peak and each instance's corner at most once. The direction alone cannot tell apart two
+centroids in line with a corner (joining the best-aligned centroid went wrong in 4 % of 300 two-instance
+scenes); the distance does, as upstream's choice of the nearest candidate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dope_training.targets import cells_to_pixels
+
+WINDOW = 5  # cells, the sub-pixel window's side
+
+
+@dataclass
+class Detection:
+    """One instance: keypoints [9, 2] in input pixels (corners 0..7 in DOPE's order, NaN where not found,
+    then the centroid) and scores [9] (unblurred belief at each keypoint's peak, 0 where not found)."""
+
+    keypoints: np.ndarray
+    scores: np.ndarray
+
+    @property
+    def score(self) -> float:
+        """The centroid's belief."""
+        return float(self.scores[8])
+
+
+def find_peaks(belief: np.ndarray, stride: int = 8, blur_cells: float = 1.0, blur_threshold: float = 0.01,
+               min_score: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Peaks of one belief map [h, w] (see the module docstring): points [P, 2] (x, y input pixels),
+    cells [P, 2] (row, column of the peak cell) and scores [P]."""
+    belief = np.asarray(belief, dtype=np.float32)
+    blurred = cv2.GaussianBlur(belief, (0, 0), blur_cells, borderType=cv2.BORDER_REFLECT)
+    padded = np.pad(blurred, 1, constant_values=-np.inf)
+    centre = padded[1:-1, 1:-1]
+    is_peak = ((centre >= padded[1:-1, :-2]) & (centre > padded[1:-1, 2:]) & (centre >= padded[:-2, 1:-1])
+               & (centre > padded[2:, 1:-1]) & (centre > blur_threshold) & (belief > min_score))
+    cells = np.argwhere(is_peak)
+    r = WINDOW // 2
+    h, w = belief.shape
+    points = np.empty((len(cells), 2))
+    for n, (i, j) in enumerate(cells):
+        rows, cols = slice(max(i - r, 0), min(i + r + 1, h)), slice(max(j - r, 0), min(j + r + 1, w))
+        weights = np.maximum(belief[rows, cols], 0.0)
+        ii, jj = np.mgrid[rows, cols]
+        points[n] = ((weights * jj).sum(), (weights * ii).sum()) / weights.sum()
+    return cells_to_pixels(points, stride), cells, belief[tuple(cells.T)]
+
+
+def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8, blur_cells: float = 1.0,
+                   blur_threshold: float = 0.01, min_score: float = 0.1,
+                   max_angle_error: float = 0.5) -> list[Detection]:
+    """Instances in one image's maps: beliefs [9, h, w], affinities [16, h, w] (the network's last stage).
+
+    Returns Detections (keypoints in input pixels of the network's input), highest centroid score first.
+    """
+    centroids, _, centroid_scores = find_peaks(beliefs[8], stride, blur_cells, blur_threshold, min_score)
+    order = np.argsort(-centroid_scores, kind="stable")
+    centroids, centroid_scores = centroids[order], centroid_scores[order]
+    detections = []
+    for centroid, score in zip(centroids, centroid_scores):
+        keypoints = np.full((9, 2), np.nan)
+        keypoints[8] = centroid
+        detections.append(Detection(keypoints, np.r_[np.zeros(8), score]))
+    for k in range(8):
+        points, cells, scores = find_peaks(beliefs[k], stride, blur_cells, blur_threshold, min_score)
+        pairs = []  # (distance, peak, instance) of every pair whose directions agree
+        for p, (point, (i, j)) in enumerate(zip(points, cells)):
+            affinity = affinities[2 * k:2 * k + 2, i, j].astype(np.float64)
+            if np.linalg.norm(affinity) < 1e-6:
+                continue
+            to_centroid = centroids - point
+            distances = np.linalg.norm(to_centroid, axis=1)
+            errors = np.linalg.norm(to_centroid / np.maximum(distances, 1e-9)[:, None]
+                                    - affinity / np.linalg.norm(affinity), axis=1)
+            pairs += [(distances[n], p, n) for n in np.flatnonzero(errors < max_angle_error)]
+        used = set()
+        for _, p, n in sorted(pairs):
+            if p not in used and np.isnan(detections[n].keypoints[k, 0]):
+                used.add(p)
+                detections[n].keypoints[k] = points[p]
+                detections[n].scores[k] = scores[p]
+    return detections

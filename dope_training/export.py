@@ -1,0 +1,97 @@
+"""ONNX export of a DOPE network, and its parity with torch under onnxruntime.
+
+The graph's input ``image`` [B, 3, H, W] float32 is RGB in 0..1 (H, W multiples of 8): the normalisation
+(mean/std, stored in the model's config) is part of the network and so of the graph. Its outputs are the
+last stage's ``beliefs`` [B, 9, H/8, W/8] and ``affinities`` [B, 16, H/8, W/8]; batch, height and width
+are dynamic. metadata_props hold ``variant``, ``stride``, ``input`` (the layout and range above),
+``mean``, ``std`` (JSON lists) and ``config`` (the model's config as JSON, for ``model.build_model``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import warnings
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime
+import torch
+from torch import nn
+
+from dope_training.model import DopeNetwork, model_config
+
+STRIDE = 8
+INPUT = "RGB float32 0..1, [B, 3, H, W], H and W multiples of 8"
+
+
+@contextmanager
+def _evaluating(model: nn.Module):
+    """Eval mode without gradients for the block, then the model's former mode."""
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            yield
+    finally:
+        model.train(was_training)
+
+
+class _LastStage(nn.Module):
+    """The network with only its last stage's (beliefs, affinities) as outputs."""
+
+    def __init__(self, model: DopeNetwork):
+        super().__init__()
+        self.model = model
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.model(image)[-1]
+
+
+def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17) -> Path:
+    """Write ``model`` as an ONNX file at ``path`` (via a temporary file in the same folder, renamed when
+    complete and checked) and return the path."""
+    path = Path(path)
+    config = model_config(model)
+    maps = {0: "batch", 2: "map_height", 3: "map_width"}
+    fd, tmp = tempfile.mkstemp(suffix=".onnx.tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        with _evaluating(model), warnings.catch_warnings():
+            # TorchScript exporter (its deprecation notice silenced): the torch.export one needs onnxscript
+            warnings.filterwarnings("ignore", category=DeprecationWarning)
+            torch.onnx.export(_LastStage(model), torch.zeros(1, 3, 64, 64), tmp, dynamo=False, opset_version=opset,
+                              input_names=["image"], output_names=["beliefs", "affinities"],
+                              dynamic_axes={"image": {0: "batch", 2: "height", 3: "width"},
+                                            "beliefs": maps, "affinities": maps})
+        graph = onnx.load(tmp)
+        meta = {"variant": config["variant"], "stride": str(STRIDE), "input": INPUT,
+                "mean": json.dumps(list(config["mean"])), "std": json.dumps(list(config["std"])),
+                "config": json.dumps(config)}
+        for key, value in meta.items():
+            graph.metadata_props.add(key=key, value=value)
+        onnx.checker.check_model(graph)
+        onnx.save(graph, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
+
+
+def check_parity(model: DopeNetwork, path: str | Path, sizes, seed: int = 0) -> float:
+    """Max abs difference between onnxruntime (CPU) on the file at ``path`` and torch on ``model``, over both
+    outputs, for random inputs of each (batch, height, width) in ``sizes``."""
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    for batch, height, width in sizes:
+        image = rng.random((batch, 3, height, width), dtype=np.float32)
+        with _evaluating(model):
+            expected = [t.numpy() for t in model(torch.from_numpy(image))[-1]]
+        got = session.run(["beliefs", "affinities"], {"image": image})
+        worst = max(worst, *(float(np.abs(g - e).max()) for g, e in zip(got, expected)))
+    return worst

