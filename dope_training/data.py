@@ -9,7 +9,6 @@ become targets.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import torch
 from dope_training.cuboid import cuboid_points, project_points
 from dope_training.targets import make_targets
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.files import read_json
 
 IMAGE_EXTENSIONS = (".jpg", ".png", ".jpeg")
 
@@ -35,18 +35,9 @@ class Sample:
     visibility: list[float] = field(default_factory=list)
 
 
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except OSError:
-        raise PegasusError(f"{path}: missing") from None
-    except json.JSONDecodeError as exc:
-        raise PegasusError(f"{path}: not valid JSON ({exc})") from None
-
-
 def model_boxes(root: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """{obj_id: (bbox_min [3], bbox_size [3]) in metres} from a BOP dataset's models/models_info.json."""
-    info = _read_json(Path(root) / "models" / "models_info.json")
+    info = read_json(Path(root) / "models" / "models_info.json")
     return {int(k): (np.array([v["min_x"], v["min_y"], v["min_z"]]) / 1000.0,
                      np.array([v["size_x"], v["size_y"], v["size_z"]]) / 1000.0) for k, v in info.items()}
 
@@ -55,7 +46,7 @@ def object_names(split_dir: Path) -> dict[str, int]:
     """{name: obj_id} from the scenes' scene_gt_coco.json categories (empty when there are none)."""
     names = {}
     for coco in sorted(split_dir.glob("*/scene_gt_coco.json")):
-        for category in _read_json(coco).get("categories", []):
+        for category in read_json(coco).get("categories", []):
             names[category["name"]] = int(category["id"])
     return names
 
@@ -87,9 +78,9 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
     cuboids = {k: cuboid_points(*boxes[k]) for k in wanted}
     samples = []
     for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        gt = _read_json(scene / "scene_gt.json")
-        cams = _read_json(scene / "scene_camera.json")
-        infos = _read_json(scene / "scene_gt_info.json")
+        gt = read_json(scene / "scene_gt.json")
+        cams = read_json(scene / "scene_camera.json")
+        infos = read_json(scene / "scene_gt_info.json")
         for im_id in sorted(gt, key=int):
             image = next((scene / "rgb" / f"{int(im_id):06d}{e}" for e in IMAGE_EXTENSIONS
                           if (scene / "rgb" / f"{int(im_id):06d}{e}").is_file()), None)
@@ -118,7 +109,7 @@ def load_ndds(folder: str | Path, classes, min_visibility: float = 0.1) -> list[
     samples = []
     for doc_path in sorted(folder.rglob("*.json")):
         image = next((doc_path.with_suffix(e) for e in IMAGE_EXTENSIONS if doc_path.with_suffix(e).is_file()), None)
-        doc = _read_json(doc_path)
+        doc = read_json(doc_path)
         if image is None or "objects" not in doc:
             continue  # settings files and the like
         intr = doc.get("camera_data", {}).get("intrinsics", {})

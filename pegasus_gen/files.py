@@ -1,11 +1,14 @@
-"""File writing that never leaves a half-written file under the final name."""
+"""File I/O: writing that never leaves a half-written file under the final name; JSON reading with clear errors."""
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from pathlib import Path
 from typing import BinaryIO, Callable
+
+from pegasus_gen.errors import PegasusError
 
 
 def write_atomic(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> Path:
@@ -24,3 +27,14 @@ def write_atomic(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> 
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def read_json(path: str | os.PathLike):
+    """The parsed JSON file at ``path``; a missing or malformed file is a PegasusError naming it."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except OSError:
+        raise PegasusError(f"{path}: missing or unreadable") from None
+    except json.JSONDecodeError as exc:
+        raise PegasusError(f"{path}: not valid JSON ({exc})") from None

@@ -13,7 +13,6 @@ visible pixels agrees with the posed model (median absolute difference <= ``max_
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,6 +22,7 @@ import trimesh
 from tqdm import tqdm
 
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.files import read_json
 from pegasus_gen.raycast import MeshRaycaster
 
 GT_INFO_KEYS = ("bbox_obj", "bbox_visib", "px_count_all", "px_count_valid", "px_count_visib", "visib_fract")
@@ -55,15 +55,6 @@ class Report:
         return "\n".join(lines)
 
 
-def _json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except OSError:
-        raise PegasusError(f"{path}: missing (a BOP dataset has it)") from None
-    except json.JSONDecodeError as exc:
-        raise PegasusError(f"{path}: not valid JSON ({exc})") from None
-
-
 def _matrix(values, rows: int, cols: int, what: str) -> np.ndarray:
     a = np.asarray(values, dtype=np.float64)
     if a.size != rows * cols:
@@ -88,7 +79,7 @@ def _read_mask(path: Path, shape) -> np.ndarray:
 
 
 def _load_models(root: Path, report: Report) -> dict[int, MeshRaycaster]:
-    info = _json(root / "models" / "models_info.json")
+    info = read_json(root / "models" / "models_info.json")
     models = {}
     for key, entry in info.items():
         where = f"models_info.json[{key}]"
@@ -200,7 +191,7 @@ def validate(root: str | Path, split: str = "train_pbr", *, min_mask_px: int = 5
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset (or choose --split)")
     report = Report()
-    camera = _json(root / "camera.json")
+    camera = read_json(root / "camera.json")
     missing = [k for k in ("fx", "fy", "cx", "cy", "width", "height") if k not in camera]
     if missing:
         report.problems.append(f"camera.json: missing {', '.join(missing)}")
@@ -212,7 +203,7 @@ def validate(root: str | Path, split: str = "train_pbr", *, min_mask_px: int = 5
     if not scenes:
         report.problems.append(f"{split}: no scenes")
     for scene in tqdm(scenes, desc="validate", unit="scene"):
-        gt, cams, infos = (_json(scene / n) for n in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json"))
+        gt, cams, infos = (read_json(scene / n) for n in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json"))
         if not set(gt) == set(cams) == set(infos):
             report.problems.append(f"{scene.name}: scene_gt, scene_camera and scene_gt_info hold different images")
             continue
@@ -226,7 +217,7 @@ def validate(root: str | Path, split: str = "train_pbr", *, min_mask_px: int = 5
                 report.problems.append(f"{scene.name}/{int(im_id):06d}: {exc}")
         coco = scene / "scene_gt_coco.json"
         if coco.is_file():
-            annotations = _json(coco).get("annotations", [])
+            annotations = read_json(coco).get("annotations", [])
             if len(annotations) != sum(len(v) for v in gt.values()):
                 report.problems.append(f"{scene.name}: scene_gt_coco.json has {len(annotations)} annotations, "
                                        "scene_gt another number of instances")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import cv2
@@ -11,8 +10,9 @@ import numpy as np
 from tqdm import tqdm
 
 from dope_training.cuboid import cuboid_points, project_points
+from dope_training.data import model_boxes
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.files import write_atomic
+from pegasus_gen.files import read_json, write_atomic
 from pegasus_gen.images import write_image
 
 # edges of the DOPE-ordered cuboid: top face, bottom face, verticals
@@ -71,20 +71,14 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
     root, out = Path(root), Path(out)
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset (or choose --split)")
-    info_path = root / "models" / "models_info.json"
-    if not info_path.is_file():
-        raise PegasusError(f"{info_path}: missing (a BOP dataset has it)")
-    info = {int(k): v for k, v in json.loads(info_path.read_text()).items()}
-    boxes = {k: (np.array([v["min_x"], v["min_y"], v["min_z"]]) / 1000, np.array([v["size_x"], v["size_y"],
-                                                                                    v["size_z"]]) / 1000)
-             for k, v in info.items()}
+    boxes = model_boxes(root)
     cards = []
     scenes = sorted(p for p in (root / split).iterdir() if p.is_dir() and not p.name.startswith("."))
     for scene in tqdm(scenes, desc="view", unit="scene"):
-        gt = json.loads((scene / "scene_gt.json").read_text())
-        cams = json.loads((scene / "scene_camera.json").read_text())
+        gt = read_json(scene / "scene_gt.json")
+        cams = read_json(scene / "scene_camera.json")
         gt_info_path = scene / "scene_gt_info.json"
-        gt_info = json.loads(gt_info_path.read_text()) if gt_info_path.is_file() else {}
+        gt_info = read_json(gt_info_path) if gt_info_path.is_file() else {}
         for im_id in sorted(gt, key=int)[:max_images]:
             i = int(im_id)
             image = _rgb(scene, i)
