@@ -66,6 +66,52 @@ def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> 
     return ids
 
 
+@dataclass
+class BopInstance:
+    """One ground-truth instance: obj_id, T_cam_obj [4, 4] (m), its index in scene_gt and visib_fract (None
+    without scene_gt_info.json)."""
+
+    obj_id: int
+    T: np.ndarray
+    index: int
+    visib_fract: float | None
+
+
+@dataclass
+class BopFrame:
+    """One image of a BOP split: scene folder, im_id, image path, K [3, 3] and the instances in it."""
+
+    scene: Path
+    im_id: int
+    image: Path
+    K: np.ndarray
+    instances: list[BopInstance]
+
+
+def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
+    """Iterate over the BopFrames of a BOP split folder, scene by scene, in im_id order (the first
+    ``max_per_scene`` of each scene when given)."""
+    split_dir = Path(split_dir)
+    for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        gt = read_json(scene / "scene_gt.json")
+        cams = read_json(scene / "scene_camera.json")
+        infos = read_json(scene / "scene_gt_info.json") if (scene / "scene_gt_info.json").is_file() else {}
+        for im_id in sorted(gt, key=int)[:max_per_scene]:
+            image = next((scene / "rgb" / f"{int(im_id):06d}{e}" for e in IMAGE_EXTENSIONS
+                          if (scene / "rgb" / f"{int(im_id):06d}{e}").is_file()), None)
+            if image is None:
+                raise PegasusError(f"{scene}/rgb: no image {int(im_id):06d}")
+            instances = []
+            for n, entry in enumerate(gt[im_id]):
+                T = np.eye(4)
+                T[:3, :3] = np.array(entry["cam_R_m2c"], dtype=np.float64).reshape(3, 3)
+                T[:3, 3] = np.array(entry["cam_t_m2c"], dtype=np.float64) / 1000.0
+                visib = infos[im_id][n]["visib_fract"] if im_id in infos else None
+                instances.append(BopInstance(int(entry["obj_id"]), T, n, visib))
+            yield BopFrame(scene, int(im_id), image, np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3),
+                           instances)
+
+
 def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility: float = 0.1) -> list[Sample]:
     """Samples of every image of a BOP split holding at least one visible instance of ``objects``
     (obj_ids or names)."""
@@ -77,27 +123,16 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
     wanted = set(resolve_objects(objects, boxes, object_names(split_dir), str(root)))
     cuboids = {k: cuboid_points(*boxes[k]) for k in wanted}
     samples = []
-    for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        gt = read_json(scene / "scene_gt.json")
-        cams = read_json(scene / "scene_camera.json")
-        infos = read_json(scene / "scene_gt_info.json")
-        for im_id in sorted(gt, key=int):
-            image = next((scene / "rgb" / f"{int(im_id):06d}{e}" for e in IMAGE_EXTENSIONS
-                          if (scene / "rgb" / f"{int(im_id):06d}{e}").is_file()), None)
-            if image is None:
-                raise PegasusError(f"{scene}/rgb: no image {int(im_id):06d}")
-            sample = Sample(image, np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3))
-            for entry, info in zip(gt[im_id], infos[im_id]):
-                if entry["obj_id"] not in wanted or info["visib_fract"] < min_visibility:
-                    continue
-                T = np.eye(4)
-                T[:3, :3] = np.array(entry["cam_R_m2c"]).reshape(3, 3)
-                T[:3, 3] = np.array(entry["cam_t_m2c"]) / 1000.0
-                sample.keypoints.append(project_points(cuboids[entry["obj_id"]], T, sample.K))
-                sample.obj_ids.append(int(entry["obj_id"]))
-                sample.visibility.append(float(info["visib_fract"]))
-            if sample.keypoints:
-                samples.append(sample)
+    for frame in bop_frames(split_dir):
+        sample = Sample(frame.image, frame.K)
+        for inst in frame.instances:
+            visib = 1.0 if inst.visib_fract is None else inst.visib_fract
+            if inst.obj_id in wanted and visib >= min_visibility:
+                sample.keypoints.append(project_points(cuboids[inst.obj_id], inst.T, frame.K))
+                sample.obj_ids.append(inst.obj_id)
+                sample.visibility.append(visib)
+        if sample.keypoints:
+            samples.append(sample)
     return samples
 
 
@@ -148,12 +183,12 @@ class Augment:
 
 def crop_transform(image_hw: tuple[int, int], size: int, centre: np.ndarray, rng: np.random.Generator,
                    aug: Augment) -> np.ndarray:
-    """[2, 3] affine map from image pixels to crop pixels: the image's shorter side fitted into ``size``,
-    randomly scaled, rotated about and centred near ``centre`` [2] (px)."""
+    """[2, 3] affine map from image pixels to crop pixels: the image's shorter side fitted into ``size`` (the
+    nominal scale, which inference reproduces), randomly scaled, rotated about and centred near ``centre`` [2]
+    (px). Without augmentation: the nominal scale, centred on ``centre``."""
     h, w = image_hw
     base = size / min(h, w)
     if not aug.enabled:
-        centre = np.array([(w - 1) / 2, (h - 1) / 2])
         return np.array([[base, 0, (size - 1) / 2 - base * centre[0]], [0, base, (size - 1) / 2 - base * centre[1]]])
     s = base * rng.uniform(*aug.scale)
     a = np.radians(rng.uniform(-aug.rotation_deg, aug.rotation_deg))

@@ -4,7 +4,10 @@ The graph's input ``image`` [B, 3, H, W] float32 is RGB in 0..1 (H, W multiples 
 (mean/std, stored in the model's config) is part of the network and so of the graph. Its outputs are the
 last stage's ``beliefs`` [B, 9, H/8, W/8] and ``affinities`` [B, 16, H/8, W/8]; batch, height and width
 are dynamic. metadata_props hold ``variant``, ``stride``, ``input`` (the layout and range above),
-``mean``, ``std`` (JSON lists) and ``config`` (the model's config as JSON, for ``model.build_model``).
+``mean``, ``std`` (JSON lists) and ``config`` (the model's config as JSON, for ``model.build_model``); an
+export from a training checkpoint adds ``object`` (the TargetObject as JSON: obj_id, name, model box in
+metres, symmetric) and ``input_short_side`` (px: inference scales images so that their shorter side has
+this length, the scale the network was trained at).
 """
 
 from __future__ import annotations
@@ -22,7 +25,9 @@ import onnxruntime
 import torch
 from torch import nn
 
+from dope_training.checkpoint import load_checkpoint, model_from_checkpoint
 from dope_training.model import DopeNetwork, model_config
+from pegasus_gen.errors import PegasusError
 
 STRIDE = 8
 INPUT = "RGB float32 0..1, [B, 3, H, W], H and W multiples of 8"
@@ -51,9 +56,9 @@ class _LastStage(nn.Module):
         return self.model(image)[-1]
 
 
-def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17) -> Path:
+def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17, metadata: dict[str, str] | None = None) -> Path:
     """Write ``model`` as an ONNX file at ``path`` (via a temporary file in the same folder, renamed when
-    complete and checked) and return the path."""
+    complete and checked) with ``metadata`` added to the standard keys; returns the path."""
     path = Path(path)
     config = model_config(model)
     maps = {0: "batch", 2: "map_height", 3: "map_width"}
@@ -70,7 +75,7 @@ def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17) -> Path:
         graph = onnx.load(tmp)
         meta = {"variant": config["variant"], "stride": str(STRIDE), "input": INPUT,
                 "mean": json.dumps(list(config["mean"])), "std": json.dumps(list(config["std"])),
-                "config": json.dumps(config)}
+                "config": json.dumps(config), **(metadata or {})}
         for key, value in meta.items():
             graph.metadata_props.add(key=key, value=value)
         onnx.checker.check_model(graph)
@@ -95,3 +100,19 @@ def check_parity(model: DopeNetwork, path: str | Path, sizes, seed: int = 0) -> 
         got = session.run(["beliefs", "affinities"], {"image": image})
         worst = max(worst, *(float(np.abs(g - e).max()) for g, e in zip(got, expected)))
     return worst
+
+
+def export_checkpoint(checkpoint: str | Path, path: str | Path, opset: int = 17,
+                      tolerance: float = 1e-4) -> tuple[Path, float]:
+    """Export a training checkpoint's network with its object and input scale as metadata, then check
+    onnxruntime against torch at two sizes; a file whose outputs differ by more than ``tolerance`` is removed
+    and reported. Returns (path, max abs difference)."""
+    state = load_checkpoint(checkpoint)
+    model = model_from_checkpoint(state)
+    metadata = {"object": json.dumps(state["object"]), "input_short_side": str(state["train_config"]["size"])}
+    path = export_onnx(model, path, opset, metadata)
+    diff = check_parity(model, path, [(1, 240, 320), (2, 64, 96)])
+    if diff > tolerance:
+        path.unlink()
+        raise PegasusError(f"{path}: onnxruntime differs from torch by {diff:.2e} > {tolerance:g}; not kept")
+    return path, diff

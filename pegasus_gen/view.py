@@ -10,9 +10,9 @@ import numpy as np
 from tqdm import tqdm
 
 from dope_training.cuboid import cuboid_points, project_points
-from dope_training.data import model_boxes
+from dope_training.data import bop_frames, model_boxes
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.files import read_json, write_atomic
+from pegasus_gen.files import write_atomic
 from pegasus_gen.images import write_image
 
 # edges of the DOPE-ordered cuboid: top face, bottom face, verticals
@@ -52,14 +52,6 @@ def draw_instance(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, bbox_
     cv2.putText(image, label, (x + 4, y - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1, cv2.LINE_AA)
 
 
-def _rgb(scene: Path, im_id: int) -> np.ndarray:
-    for ext in ("jpg", "png", "jpeg"):
-        image = cv2.imread(str(scene / "rgb" / f"{im_id:06d}.{ext}"), cv2.IMREAD_COLOR)
-        if image is not None:
-            return image[..., ::-1].copy()
-    raise PegasusError(f"{scene}/rgb: no image {im_id:06d}")
-
-
 def _mask(path: Path) -> np.ndarray | None:
     m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     return None if m is None else m > 0
@@ -73,33 +65,23 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
         raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset (or choose --split)")
     boxes = model_boxes(root)
     cards = []
-    scenes = sorted(p for p in (root / split).iterdir() if p.is_dir() and not p.name.startswith("."))
-    for scene in tqdm(scenes, desc="view", unit="scene"):
-        gt = read_json(scene / "scene_gt.json")
-        cams = read_json(scene / "scene_camera.json")
-        gt_info_path = scene / "scene_gt_info.json"
-        gt_info = read_json(gt_info_path) if gt_info_path.is_file() else {}
-        for im_id in sorted(gt, key=int)[:max_images]:
-            i = int(im_id)
-            image = _rgb(scene, i)
-            K = np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3)
-            caption = []
-            infos = gt_info.get(im_id)
-            for gt_idx, entry in enumerate(gt[im_id]):
-                T = np.eye(4)
-                T[:3, :3] = np.array(entry["cam_R_m2c"]).reshape(3, 3)
-                T[:3, 3] = np.array(entry["cam_t_m2c"]) / 1000
-                obj_id = int(entry["obj_id"])
-                fract = infos[gt_idx]["visib_fract"] if infos else None
-                label = f"{obj_id}" + (f" {fract:.0%}" if fract is not None else "")
-                caption.append(f"obj {label}")
-                bbox_min, bbox_size = boxes.get(obj_id, (np.zeros(3), np.zeros(3)))
-                name = f"{i:06d}_{gt_idx:06d}.png"
-                draw_instance(image, K, T, bbox_min, bbox_size, _mask(scene / "mask" / name),
-                              _mask(scene / "mask_visib" / name), _colour(obj_id), label)
-            file = f"{scene.name}_{i:06d}.jpg"
-            write_image(out / file, image, jpg_quality=90)
-            cards.append((file, f"scene {scene.name} image {i}", ", ".join(caption)))
+    frames = list(bop_frames(root / split, max_images))
+    for frame in tqdm(frames, desc="view", unit="image"):
+        image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
+        if image is None:
+            raise PegasusError(f"{frame.image}: cannot read the image")
+        image = image[..., ::-1].copy()
+        caption = []
+        for inst in frame.instances:
+            label = f"{inst.obj_id}" + (f" {inst.visib_fract:.0%}" if inst.visib_fract is not None else "")
+            caption.append(f"obj {label}")
+            bbox_min, bbox_size = boxes.get(inst.obj_id, (np.zeros(3), np.zeros(3)))
+            name = f"{frame.im_id:06d}_{inst.index:06d}.png"
+            draw_instance(image, frame.K, inst.T, bbox_min, bbox_size, _mask(frame.scene / "mask" / name),
+                          _mask(frame.scene / "mask_visib" / name), _colour(inst.obj_id), label)
+        file = f"{frame.scene.name}_{frame.im_id:06d}.jpg"
+        write_image(out / file, image, jpg_quality=90)
+        cards.append((file, f"scene {frame.scene.name} image {frame.im_id}", ", ".join(caption)))
     figures = "\n".join(
         f'<figure><a href="{html.escape(f)}"><img src="{html.escape(f)}" loading="lazy"></a>'
         f"<figcaption><b>{html.escape(t)}</b><br>{html.escape(c)}</figcaption></figure>" for f, t, c in cards)

@@ -1,0 +1,51 @@
+"""Training checkpoints: what one holds and how it is read back.
+
+A checkpoint (``torch.save`` of a dict) holds ``format``, ``model`` and ``optimizer`` (and ``scaler``) state,
+``epoch`` (epochs done), ``step`` (optimisation steps done), ``model_config`` (``model.model_config``: the
+architecture and input normalisation), ``train_config`` (the TrainConfig as a dict), ``object`` (the
+TargetObject as a dict) and ``stride``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from dope_training.model import DopeNetwork, build_model
+from pegasus_gen.errors import PegasusError
+
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass
+class TargetObject:
+    """The object a network is trained for: what PnP and evaluation need without the dataset."""
+
+    obj_id: int
+    name: str
+    bbox_min: list[float]  # [3] metres, model frame
+    bbox_size: list[float]  # [3] metres
+    symmetric: bool = False
+
+
+def load_checkpoint(path: str | Path) -> dict:
+    """A checkpoint written by training (tensors mapped to the CPU); a clear error for anything else."""
+    path = Path(path)
+    if not path.is_file():
+        raise PegasusError(f"{path}: no such checkpoint")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises several kinds for a damaged or foreign file
+        raise PegasusError(f"{path}: not a readable checkpoint ({exc})") from exc
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise PegasusError(f"{path}: not a pegasus DOPE checkpoint (format {CHECKPOINT_FORMAT})")
+    return state
+
+
+def model_from_checkpoint(state: dict) -> DopeNetwork:
+    """The trained network of a checkpoint, in eval mode on the CPU."""
+    model = build_model(state["model_config"])
+    model.load_state_dict(state["model"])
+    return model.eval()

@@ -1,0 +1,172 @@
+"""Pose accuracy of a trained DOPE network on a BOP split (``pegasus eval``): ADD and ADD-S.
+
+ADD (Hinterstoisser et al.): mean distance between the model's points under the estimated and the true
+pose. ADD-S: mean distance from each point under the true pose to the nearest point under the estimated
+pose (for symmetric objects). The object's metric is ADD-S when models_info gives it symmetries, else ADD;
+both are reported. Every ground-truth instance of the object seen at visib_fract >= ``min_visibility``
+counts: each is matched to the estimate of smallest ADD-S in its image (greedily, each estimate at most
+once); an instance with no estimate left is a miss (infinite error, failing every threshold); estimates
+left over are false positives. Pass rates at 2, 5 and 10 cm; AUC: the area under the pass-rate curve over
+thresholds 0..10 cm divided by 10 cm (1.0 = every error 0).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from dope_training.data import bop_frames
+from dope_training.infer import DopeModel
+from pegasus_gen import images
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.files import read_json, write_atomic
+from pegasus_gen.plots import line_chart
+
+THRESHOLDS_M = (0.02, 0.05, 0.10)
+AUC_MAX_M = 0.10
+MAX_MODEL_POINTS = 2000
+
+
+def add_error(points: np.ndarray, T_est: np.ndarray, T_gt: np.ndarray) -> float:
+    """ADD in the points' units: points [N, 3] (model frame), poses [4, 4]."""
+    est = points @ T_est[:3, :3].T + T_est[:3, 3]
+    gt = points @ T_gt[:3, :3].T + T_gt[:3, 3]
+    return float(np.linalg.norm(est - gt, axis=1).mean())
+
+
+def adds_error(points: np.ndarray, T_est: np.ndarray, T_gt: np.ndarray) -> float:
+    """ADD-S in the points' units: for each true-pose point the distance to the nearest estimated-pose point."""
+    est = points @ T_est[:3, :3].T + T_est[:3, 3]
+    gt = points @ T_gt[:3, :3].T + T_gt[:3, 3]
+    return float(cKDTree(est).query(gt)[0].mean())
+
+
+def pass_rates(errors: np.ndarray, thresholds) -> np.ndarray:
+    """Fraction of ``errors`` [N] (inf = miss) at or below each threshold."""
+    errors = np.asarray(errors, float)
+    return np.array([(errors <= t).mean() if len(errors) else 0.0 for t in thresholds])
+
+
+def auc(errors: np.ndarray, max_threshold: float = AUC_MAX_M) -> float:
+    """Area under the pass-rate curve over thresholds 0..max_threshold, divided by max_threshold: the mean
+    over instances of max(0, 1 - error / max_threshold)."""
+    errors = np.asarray(errors, float)
+    return float(np.clip(1 - errors / max_threshold, 0, 1).mean()) if len(errors) else 0.0
+
+
+def model_points(root: Path, obj_id: int) -> np.ndarray:
+    """[N, 3] metres: the vertices of the BOP model (mm), at most MAX_MODEL_POINTS (evenly strided)."""
+    path = root / "models" / f"obj_{obj_id:06d}.ply"
+    if not path.is_file():
+        raise PegasusError(f"{path}: the model of obj_id {obj_id} is missing")
+    vertices = np.asarray(trimesh.load(path, process=False).vertices, dtype=np.float64) / 1000.0
+    return vertices[::max(1, len(vertices) // MAX_MODEL_POINTS)]
+
+
+@dataclass
+class Match:
+    """One ground-truth instance and its estimate (None: missed)."""
+
+    scene: str
+    im_id: int
+    gt_index: int
+    add_m: float
+    adds_m: float
+    score: float | None
+    T_est: np.ndarray | None
+    T_gt: np.ndarray
+
+
+def match_instances(points: np.ndarray, truths: list[np.ndarray], estimates: list) -> tuple[list, int]:
+    """Greedy one-to-one matching by ADD-S: [(truth index, estimate index or None, add, adds)] and the count
+    of estimates left over."""
+    pairs = sorted((adds_error(points, e.T, t), i, j) for i, t in enumerate(truths) for j, e in enumerate(estimates))
+    taken_t, taken_e, out = set(), set(), []
+    for adds, i, j in pairs:
+        if i not in taken_t and j not in taken_e:
+            taken_t.add(i)
+            taken_e.add(j)
+            out.append((i, j, add_error(points, estimates[j].T, truths[i]), adds))
+    out += [(i, None, np.inf, np.inf) for i in range(len(truths)) if i not in taken_t]
+    return sorted(out, key=lambda m: m[0]), len(estimates) - len(taken_e)
+
+
+def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibility: float = 0.1,
+             max_images: int | None = None, min_score: float = 0.1) -> dict:
+    """The report (see the module docstring) as a dict; ``max_images`` per scene."""
+    root = Path(root)
+    if not (root / split).is_dir():
+        raise PegasusError(f"{root}: no {split}/ folder (choose --split)")
+    obj = model.object
+    info = read_json(root / "models" / "models_info.json").get(str(obj.obj_id))
+    if info is None:
+        raise PegasusError(f"{root}: models_info.json has no obj_id {obj.obj_id} (the model was trained for "
+                           f"{obj.name!r})")
+    size = np.array([info["size_x"], info["size_y"], info["size_z"]]) / 1000.0
+    if not np.allclose(size, obj.bbox_size, atol=1e-3):
+        raise PegasusError(f"{root}: obj_id {obj.obj_id} is {np.round(size, 3).tolist()} m, the model's object "
+                           f"{obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
+    symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous"))
+    points = model_points(root, obj.obj_id)
+    matches, false_positives, images_seen = [], 0, 0
+    frames = [f for f in bop_frames(root / split, max_images)
+              if any(i.obj_id == obj.obj_id for i in f.instances)]
+    for frame in tqdm(frames, desc="eval", unit="img"):
+        truths = [i for i in frame.instances if i.obj_id == obj.obj_id
+                  and (i.visib_fract is None or i.visib_fract >= min_visibility)]
+        if not truths:
+            continue
+        image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
+        if image is None:
+            raise PegasusError(f"{frame.image}: cannot read the image")
+        estimates = model.estimate(image[..., ::-1].copy(), frame.K, min_score=min_score)
+        images_seen += 1
+        pairs, extra = match_instances(points, [t.T for t in truths], estimates)
+        false_positives += extra
+        for i, j, add, adds in pairs:
+            est = estimates[j] if j is not None else None
+            matches.append(Match(frame.scene.name, frame.im_id, truths[i].index, add, adds,
+                                 est.score if est else None, est.T if est else None, truths[i].T))
+    add = np.array([m.add_m for m in matches])
+    adds = np.array([m.adds_m for m in matches])
+    metric = adds if symmetric else add
+
+    def summary(errors):
+        found = errors[np.isfinite(errors)]
+        return {"auc_0_10cm": auc(errors),
+                **{f"pass_{round(t * 100)}cm": float(r) for t, r in zip(THRESHOLDS_M, pass_rates(errors, THRESHOLDS_M))},
+                "median_m": float(np.median(found)) if len(found) else None}
+
+    return {"model": str(model.path), "backend": model.backend, "data": str(root), "split": split,
+            "object": {"obj_id": obj.obj_id, "name": obj.name, "symmetric": symmetric},
+            "metric": "ADD-S" if symmetric else "ADD", "images": images_seen, "instances": len(matches),
+            "detected": int(np.isfinite(add).sum()), "misses": int((~np.isfinite(add)).sum()),
+            "false_positives": false_positives, "min_visibility": min_visibility,
+            "result": summary(metric), "ADD": summary(add), "ADD-S": summary(adds),
+            "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
+                              "add_m": m.add_m if np.isfinite(m.add_m) else None,
+                              "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
+                             for m in matches]}
+
+
+def write_report(report: dict, out: str | Path) -> tuple[Path, Path]:
+    """``out``/eval.json and ``out``/eval_curve.png (pass rate against threshold for ADD and ADD-S)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    json_path = write_atomic(out / "eval.json", lambda f: f.write(json.dumps(report, indent=1).encode()))
+    thresholds = np.linspace(0, AUC_MAX_M, 201)
+    series = {}
+    for name in ("ADD", "ADD-S"):
+        errors = [m[name.lower().replace("-", "") + "_m"] for m in report["per_instance"]]
+        errors = np.array([np.inf if e is None else e for e in errors], float)
+        series[f"{name} (AUC {report[name]['auc_0_10cm']:.3f})"] = (thresholds * 100, pass_rates(errors, thresholds))
+    chart = line_chart(series, f"{report['object']['name']}: {report['instances']} instances, "
+                       f"{report['misses']} missed", "threshold (cm)", "pass rate", y_range=(0, 1))
+    return json_path, images.write_image(out / "eval_curve.png", chart)

@@ -1,0 +1,120 @@
+"""Object poses from an image with a trained DOPE network: onnxruntime (CPU or CUDA provider) on an exported
+ONNX file, or torch on a training checkpoint.
+
+Steps: the image is scaled so that its shorter side has the length the network was trained at (the
+training crops' nominal scale, ``input_short_side``), padded right/bottom to a multiple of 8, run; belief
+peaks are grouped into instances by the affinities (``decode.find_keypoints``); the keypoints are taken back
+to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as cv2.resize samples); PnP
+(``pnp.solve_pose``: SQPnP then Levenberg-Marquardt) with the camera K gives the pose. Missing corners do
+not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are solved, see ``pnp``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_checkpoint
+from dope_training.cuboid import cuboid_points
+from dope_training.decode import find_keypoints
+from dope_training.pnp import solve_pose
+from pegasus_gen.errors import PegasusError
+
+STRIDE = 8
+
+
+@dataclass
+class ObjectPose:
+    """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes), the centroid's belief,
+    keypoints [9, 2] in image pixels (NaN where not found) and the mean reprojection error (px)."""
+
+    T: np.ndarray
+    score: float
+    keypoints: np.ndarray
+    reprojection_error: float
+
+    def to_json(self) -> dict:
+        return {"R": self.T[:3, :3].tolist(), "t_m": self.T[:3, 3].tolist(), "score": self.score,
+                "keypoints_px": [None if np.isnan(p).any() else p.tolist() for p in self.keypoints],
+                "reprojection_error_px": self.reprojection_error}
+
+
+class DopeModel:
+    """A trained network ready for images. ``path``: an ``.onnx`` export (onnxruntime) or a ``.pt`` training
+    checkpoint (torch); ``device``: cpu, cuda or auto."""
+
+    def __init__(self, path: str | Path, device: str = "cpu", object_size=None):
+        path = Path(path)
+        if not path.is_file():
+            raise PegasusError(f"{path}: no such model file")
+        self.path = path
+        if path.suffix == ".onnx":
+            self._init_onnx(path, device)
+        else:
+            self._init_torch(path, device)
+        self.cuboid = cuboid_points(self.object.bbox_min, self.object.bbox_size)
+
+    def _init_onnx(self, path: Path, device: str) -> None:
+        import onnxruntime
+
+        available = onnxruntime.get_available_providers()
+        if device == "cuda" and "CUDAExecutionProvider" not in available:
+            raise PegasusError("--device cuda: this onnxruntime has no CUDA provider (install onnxruntime-gpu)")
+        use_cuda = device in ("cuda", "auto") and "CUDAExecutionProvider" in available
+        providers = (["CUDAExecutionProvider"] if use_cuda else []) + ["CPUExecutionProvider"]
+        try:
+            self.session = onnxruntime.InferenceSession(str(path), providers=providers)
+        except Exception as exc:  # onnxruntime raises its own exception types for bad files
+            raise PegasusError(f"{path}: onnxruntime cannot load it ({exc})") from exc
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if "object" not in meta or "input_short_side" not in meta:
+            raise PegasusError(f"{path}: no object/input_short_side metadata; export it with `pegasus export`")
+        self.object = TargetObject(**json.loads(meta["object"]))
+        self.short_side = int(meta["input_short_side"])
+        self.backend = "onnxruntime-" + ("cuda" if use_cuda else "cpu")
+        self.model = None
+
+    def _init_torch(self, path: Path, device: str) -> None:
+        state = load_checkpoint(path)
+        if device == "cuda" and not torch.cuda.is_available():
+            raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
+        self.device = torch.device("cuda" if device != "cpu" and torch.cuda.is_available() else "cpu")
+        self.model = model_from_checkpoint(state).to(self.device)
+        self.object = TargetObject(**state["object"])
+        self.short_side = int(state["train_config"]["size"])
+        self.backend = f"torch-{self.device.type}"
+
+    def maps(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+        """The last stage's beliefs [9, h, w] and affinities [16, h, w] for an RGB image [H, W, 3] uint8, and
+        the (x, y) scale from image to network-input pixels."""
+        h, w = image.shape[:2]
+        s = self.short_side / min(h, w)
+        nw, nh = max(round(w * s), 1), max(round(h * s), 1)
+        resized = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+        pw, ph = -nw % STRIDE, -nh % STRIDE
+        x = np.pad(resized, ((0, ph), (0, pw), (0, 0))).transpose(2, 0, 1)[None].astype(np.float32) / 255.0
+        if self.model is None:
+            beliefs, affinities = self.session.run(["beliefs", "affinities"], {"image": x})
+        else:
+            with torch.no_grad():
+                outputs = self.model(torch.from_numpy(x).to(self.device))[-1]
+            beliefs, affinities = (t.float().cpu().numpy() for t in outputs)
+        return beliefs[0], affinities[0], (nw / w, nh / h)
+
+    def estimate(self, image: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
+                 min_score: float = 0.1) -> list[ObjectPose]:
+        """Poses of the object's instances in an RGB image [H, W, 3] uint8 seen with intrinsics K [3, 3]
+        (and OpenCV distortion ``dist``), best score first; instances PnP cannot solve are left out."""
+        beliefs, affinities, (sx, sy) = self.maps(image)
+        poses = []
+        for det in find_keypoints(beliefs, affinities, stride=STRIDE, min_score=min_score):
+            keypoints = (det.keypoints + 0.5) / [sx, sy] - 0.5
+            solved = solve_pose(keypoints, self.cuboid, K, dist)
+            if solved is not None:
+                poses.append(ObjectPose(solved[0], det.score, keypoints, solved[1]))
+        return poses

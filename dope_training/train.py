@@ -1,0 +1,322 @@
+"""Training DOPE (``pegasus train``): one network per object, on BOP datasets or DOPE/NDDS folders, on CPU
+or CUDA, in one process or under ``torchrun`` (DDP).
+
+Output folder:
+  ``last.pt``            the newest checkpoint (``checkpoint``: model, optimizer, epochs and steps done,
+                         model and training config, the object); ``--resume`` continues it
+  ``epoch_NNNN.pt``      the checkpoint after each epoch (``keep_checkpoints`` newest kept)
+  ``loss.csv``           one row per optimisation step: step, epoch, loss (mean over ranks), images (over
+                         all ranks), images_per_s, lr; a resumed run first drops rows past its checkpoint
+  ``loss.png``           the curve (per step and epoch means), redrawn after every epoch
+  ``beliefs/epoch_NNNN.png`` the first training image (no augmentation) with its target and the
+                         predicted beliefs of the last stage
+  ``train_config.yaml``  the configuration
+
+Distributed: each rank reads a disjoint shard of a permutation drawn per epoch from (seed, epoch); the
+shards cover the dataset exactly once (torch's DistributedSampler pads with repeats instead), ranks with
+one batch fewer are handled by DDP's ``join``. Only rank 0 writes files.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+import yaml
+from tqdm import tqdm
+
+from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
+from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, model_boxes, object_names, resolve_objects
+from dope_training.model import DopeNetwork, ModelConfig, dope_loss, load_vgg19_weights, model_config
+from pegasus_gen import images
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.files import read_json, write_atomic
+from pegasus_gen.plots import line_chart
+
+# Keys a resumed run may change; any other difference means another experiment and is refused.
+RESUMABLE_KEYS = {"epochs", "device", "loader_workers", "keep_checkpoints", "checkpoint_every", "out"}
+
+
+@dataclass
+class TrainConfig:
+    """One training run. ``size``/``lr`` of 0 take the variant's default (full: 400 px, 1e-4 as DOPE;
+    light: 320 px, 1e-3)."""
+
+    data: list[str] = field(default_factory=list)  # BOP dataset roots or DOPE/NDDS folders
+    object: str = ""  # obj_id or name (BOP), class name (NDDS)
+    out: str = "runs/dope"
+    split: str = "train_pbr"
+    variant: str = "light"
+    size: int = 0
+    epochs: int = 10
+    batch_size: int = 8
+    lr: float = 0.0
+    min_visibility: float = 0.1
+    augment: bool = True
+    device: str = "auto"
+    amp: bool = True  # CUDA only
+    loader_workers: int = 2
+    seed: int = 0
+    vgg19: str | None = None  # ImageNet VGG19 weights (full variant); default: the torch hub cache if present
+    object_size: list[float] | None = None  # model box size, metres (NDDS data only; BOP has models_info)
+    keep_checkpoints: int = 3
+    checkpoint_every: int = 1  # epochs between checkpoints, belief snapshots and loss.png (and the last epoch)
+
+    def resolved(self) -> "TrainConfig":
+        """A copy with the variant defaults filled in and the values checked."""
+        ModelConfig.of(self.variant)  # raises for an unknown variant
+        cfg = TrainConfig(**asdict(self))
+        cfg.size = cfg.size or (400 if cfg.variant == "full" else 320)
+        cfg.lr = cfg.lr or (1e-4 if cfg.variant == "full" else 1e-3)
+        if not cfg.data:
+            raise PegasusError("no training data given (--data PATH, a BOP dataset or a DOPE/NDDS folder)")
+        if not cfg.object:
+            raise PegasusError("no target object given (--object NAME_OR_OBJ_ID)")
+        for name in ("epochs", "batch_size", "size", "checkpoint_every", "keep_checkpoints"):
+            if getattr(cfg, name) <= 0:
+                raise PegasusError(f"{name} must be positive, got {getattr(cfg, name)}")
+        if cfg.device not in ("auto", "cpu", "cuda"):
+            raise PegasusError(f"device must be auto, cpu or cuda, got {cfg.device!r}")
+        return cfg
+
+
+def load_training_samples(cfg: TrainConfig):
+    """(samples from every ``cfg.data`` entry, the TargetObject)."""
+    samples, target = [], None
+    for entry in cfg.data:
+        root = Path(entry)
+        if (root / "models" / "models_info.json").is_file():
+            boxes = model_boxes(root)
+            names = object_names(root / cfg.split) if (root / cfg.split).is_dir() else {}
+            obj_id = resolve_objects([cfg.object], boxes, names, str(root))[0]
+            info = read_json(root / "models" / "models_info.json")[str(obj_id)]
+            name = next((n for n, i in names.items() if i == obj_id), str(obj_id))
+            symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous"))
+            found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric)
+            samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility)
+        elif root.is_dir():
+            if cfg.object_size is None:
+                raise PegasusError(f"{root}: a DOPE/NDDS folder needs --object-size X Y Z (metres) for the cuboid")
+            size = np.asarray(cfg.object_size, float)
+            found = TargetObject(1, cfg.object, (-size / 2).tolist(), size.tolist())
+            samples += load_ndds(root, [cfg.object], cfg.min_visibility)
+        else:
+            raise PegasusError(f"{root}: no such dataset folder")
+        if target is not None and not np.allclose(target.bbox_size, found.bbox_size, atol=1e-4):
+            raise PegasusError(f"{root}: object {cfg.object!r} has another model box than in {cfg.data[0]}")
+        target = target or found
+    if not samples:
+        raise PegasusError(f"no image shows {cfg.object!r} at visibility >= {cfg.min_visibility} in {cfg.data}")
+    return samples, target
+
+
+class ShardSampler(torch.utils.data.Sampler):
+    """This rank's share of a permutation of range(n) drawn from (seed, epoch): ranks together visit every
+    index exactly once per epoch."""
+
+    def __init__(self, n: int, rank: int = 0, world: int = 1, seed: int = 0):
+        self.n, self.rank, self.world, self.seed, self.epoch = n, rank, world, seed, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __iter__(self):
+        order = np.random.default_rng([self.seed, self.epoch]).permutation(self.n)
+        return iter(order[self.rank::self.world].tolist())
+
+    def __len__(self) -> int:
+        return len(range(self.rank, self.n, self.world))
+
+
+def _distributed() -> tuple[int, int, int]:
+    """(rank, world size, local rank) from torchrun's environment; (0, 1, 0) without it."""
+    return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1)), int(os.environ.get("LOCAL_RANK", 0))
+
+
+def _device(name: str, local_rank: int) -> torch.device:
+    if name == "cuda" and not torch.cuda.is_available():
+        raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
+    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
+        return torch.device("cuda", local_rank)
+    return torch.device("cpu")
+
+
+def _read_losses(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as f:
+        return [{k: int(v) if k in ("step", "epoch") else float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+LOSS_FIELDS = ("step", "epoch", "loss", "images", "images_per_s", "lr")
+
+
+def _write_losses(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, LOSS_FIELDS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def loss_curve(rows: list[dict]) -> np.ndarray:
+    """RGB image of the loss per step and its mean per epoch, at the end of each (x: epochs done)."""
+    steps = np.array([r["step"] for r in rows])
+    epochs = np.array([r["epoch"] for r in rows])
+    loss = np.array([r["loss"] for r in rows])
+    x = np.empty(len(rows))
+    for e in np.unique(epochs):  # spread each epoch's steps over (e, e + 1]
+        at = np.flatnonzero(epochs == e)
+        x[at] = e + (steps[at] - steps[at].min() + 1) / len(at)
+    ends = [(e + 1, loss[epochs == e].mean()) for e in np.unique(epochs)]
+    series = {"loss per step": (x, loss), "epoch mean": tuple(np.array(ends).T) if ends else ([], [])}
+    return line_chart(series, "DOPE training loss", "epoch", "loss", log_y=True)
+
+
+def belief_snapshot(model: DopeNetwork, crop: np.ndarray, target: np.ndarray, device: torch.device) -> np.ndarray:
+    """RGB image: the crop [S, S, 3] uint8, the target beliefs' max over the 9 maps and the last stage's
+    predicted max (turbo colour map, 0..1), side by side."""
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        x = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1)[None].float().to(device) / 255.0
+        predicted = model(x)[-1][0][0].float().cpu().numpy()
+    model.train(was_training)
+    size = crop.shape[0]
+
+    def colour(maps):
+        heat = np.round(np.clip(maps.max(0), 0, 1) * 255).astype(np.uint8)
+        heat = cv2.resize(heat, (size, size), interpolation=cv2.INTER_NEAREST)
+        return np.ascontiguousarray(cv2.applyColorMap(heat, cv2.COLORMAP_TURBO)[..., ::-1])
+
+    panels = [crop, colour(target), colour(predicted)]
+    for panel, text in zip(panels, ("input", "target beliefs", "predicted beliefs")):
+        cv2.putText(panel, text, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return np.concatenate(panels, axis=1)
+
+
+def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
+    """The checkpoint to resume from (None for a fresh run) after checking the output folder."""
+    out = Path(cfg.out)
+    stored = out / "train_config.yaml"
+    if not resume:
+        if out.exists() and any(out.iterdir()):
+            raise PegasusError(f"{out} is not empty: pass --resume to continue its training or choose another --out")
+        return None
+    if not (out / "last.pt").is_file():
+        raise PegasusError(f"{out}: nothing to resume (no last.pt)")
+    state = load_checkpoint(out / "last.pt")
+    before = state["train_config"]
+    differ = sorted(k for k, v in asdict(cfg).items() if k not in RESUMABLE_KEYS and before.get(k) != v)
+    if differ:
+        raise PegasusError(f"{out} was trained with another configuration ({', '.join(differ)} differ; see {stored})")
+    if state["epoch"] >= cfg.epochs:
+        raise PegasusError(f"{out} has already trained {state['epoch']} epochs; ask for more with --epochs")
+    return state
+
+
+def train(cfg: TrainConfig, resume: bool = False) -> Path:
+    """Train as ``cfg`` says (see the module docstring); returns the output folder."""
+    cfg = cfg.resolved()
+    rank, world, local_rank = _distributed()
+    device = _device(cfg.device, local_rank)
+    if world > 1 and not torch.distributed.is_initialized():
+        torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
+    state = _prepare_output(cfg, resume)
+    out = Path(cfg.out)
+    samples, target = load_training_samples(cfg)
+
+    torch.manual_seed(cfg.seed)
+    model = DopeNetwork(ModelConfig.of(cfg.variant))
+    if state is None and cfg.variant == "full":
+        if not load_vgg19_weights(model, cfg.vgg19) and rank == 0:
+            print("note: no ImageNet VGG19 weights found (--vgg19 PATH or the torch hub cache): trunk from scratch")
+    model.to(device)
+    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    use_amp = cfg.amp and device.type == "cuda"
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    first_epoch, step = 0, 0
+    if state is not None:
+        model.load_state_dict(state["model"])
+        optimiser.load_state_dict(state["optimizer"])
+        scaler.load_state_dict(state["scaler"])
+        first_epoch, step = state["epoch"], state["step"]
+    net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
+        if world > 1 else model
+
+    dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed)
+    sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
+    loader_args = dict(batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.loader_workers,
+                       pin_memory=device.type == "cuda")
+    still = DopeDataset(samples[:1], cfg.size, Augment(enabled=False))
+    snapshot_crop = still.item(0)[0]
+    snapshot_target = still[0][1].numpy()
+
+    rows = []
+    if rank == 0:
+        (out / "beliefs").mkdir(parents=True, exist_ok=True)
+        config_text = yaml.safe_dump(asdict(cfg), sort_keys=False).encode()
+        write_atomic(out / "train_config.yaml", lambda f: f.write(config_text))
+        rows = [r for r in _read_losses(out / "loss.csv") if r["step"] <= step] if state else []
+        _write_losses(out / "loss.csv", rows)
+        print(f"training DOPE-{cfg.variant} on {len(dataset)} images of {target.name!r} (obj_id {target.obj_id}), "
+              f"{cfg.size} px crops, batch {cfg.batch_size} x {world} rank(s), {device.type}"
+              f"{' with AMP' if use_amp else ''}; epochs {first_epoch + 1}..{cfg.epochs}; output {out}")
+    per_epoch = math.ceil(len(dataset) / world / cfg.batch_size)
+    bar = tqdm(total=(cfg.epochs - first_epoch) * len(dataset), unit="img", disable=rank != 0, dynamic_ncols=True)
+    model.train()
+    for epoch in range(first_epoch, cfg.epochs):
+        dataset.epoch = epoch
+        sampler.set_epoch(epoch)
+        loader = torch.utils.data.DataLoader(dataset, **loader_args)
+        join = net.join() if world > 1 else contextlib.nullcontext()
+        with join:
+            t0 = time.perf_counter()
+            for batch, (image, beliefs, affinities) in enumerate(loader):
+                image, beliefs, affinities = (t.to(device, non_blocking=True) for t in (image, beliefs, affinities))
+                with torch.autocast(device.type, dtype=torch.float16, enabled=use_amp):
+                    outputs = net(image)
+                loss = dope_loss([(b.float(), a.float()) for b, a in outputs], beliefs, affinities)
+                optimiser.zero_grad(set_to_none=True)
+                scaler.scale(loss).backward()
+                scaler.step(optimiser)
+                scaler.update()
+                counts = torch.tensor([loss.item() * len(image), float(len(image))], dtype=torch.float64)
+                if world > 1:
+                    torch.distributed.all_reduce(counts)
+                step += 1
+                now = time.perf_counter()
+                rate, t0 = counts[1].item() / max(now - t0, 1e-9), now  # loading included
+                bar.update(int(counts[1].item()))
+                bar.set_postfix(epoch=f"{epoch + 1}/{cfg.epochs}", step=f"{batch + 1}/{per_epoch}",
+                                loss=f"{counts[0].item() / counts[1].item():.4g}")
+                rows.append({"step": step, "epoch": epoch, "loss": counts[0].item() / counts[1].item(),
+                             "images": counts[1].item(), "images_per_s": rate, "lr": cfg.lr})
+        if rank == 0 and ((epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs):
+            _write_losses(out / "loss.csv", rows)
+            images.write_image(out / "loss.png", loss_curve(rows))
+            images.write_image(out / "beliefs" / f"epoch_{epoch + 1:04d}.png",
+                               belief_snapshot(model, snapshot_crop.copy(), snapshot_target, device))
+            checkpoint = {"format": CHECKPOINT_FORMAT, "model": model.state_dict(), "optimizer": optimiser.state_dict(),
+                          "scaler": scaler.state_dict(), "epoch": epoch + 1, "step": step,
+                          "model_config": model_config(model), "train_config": asdict(cfg),
+                          "object": asdict(target), "stride": dataset.stride}
+            write_atomic(out / f"epoch_{epoch + 1:04d}.pt", lambda f: torch.save(checkpoint, f))
+            write_atomic(out / "last.pt", lambda f: torch.save(checkpoint, f))
+            for old in sorted(out.glob("epoch_*.pt"))[:-cfg.keep_checkpoints]:
+                old.unlink()
+        if world > 1:
+            torch.distributed.barrier()
+    bar.close()
+    if world > 1:
+        torch.distributed.destroy_process_group()
+    return out

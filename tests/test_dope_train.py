@@ -1,0 +1,179 @@
+"""DOPE training, export, inference and evaluation end to end on a tiny generated dataset: the light model
+overfits it and then finds the poses; a resumed run continues the loss curve exactly; torchrun with two
+processes visits every image once per epoch; ADD/ADD-S against brute-force references."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from dope_training.checkpoint import load_checkpoint
+from dope_training.evaluate import add_error, adds_error, auc, evaluate, match_instances, pass_rates, write_report
+from dope_training.export import export_checkpoint
+from dope_training.infer import DopeModel, ObjectPose
+from dope_training.train import ShardSampler, TrainConfig, train
+from pegasus_gen.assets import AssetLibrary
+from pegasus_gen.cli import main
+from pegasus_gen.config import load_config
+from pegasus_gen.demo_assets import build_demo_library
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.generate import generate
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
+    build_demo_library(lib)
+    out = tmp_path_factory.mktemp("ds") / "ds"
+    return generate(load_config(None, [f"output={out}", f"library={lib.root}", "scenes=1", "frames_per_scene=4",
+                                       "camera.width=320", "camera.height=240", "device=cpu",
+                                       "environments=[wooden_table]", "objects=[{asset: 1, count: [1, 1]}]",
+                                       "trajectory.distance=[0.28, 0.32]"]))
+
+
+def losses(run):
+    with open(run / "loss.csv") as f:
+        return [(int(r["epoch"]), float(r["loss"]), float(r["images"])) for r in csv.DictReader(f)]
+
+
+def small(dataset, out, **kw):
+    args = dict(data=[str(dataset)], object="noodle_cup_red", out=str(out), size=64, batch_size=2, epochs=2,
+                augment=True, loader_workers=0, device="cpu")
+    return TrainConfig(**{**args, **kw})
+
+
+def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dataset, tmp_path):
+    run = train(TrainConfig(data=[str(dataset)], object="noodle_cup_red", out=str(tmp_path / "run"), size=160,
+                            batch_size=4, epochs=500, lr=1e-3, augment=False, loader_workers=0, device="cpu",
+                            checkpoint_every=500))
+    loss = [value for _, value, _ in losses(run)]
+    assert len(loss) == 500 and loss[0] / np.mean(loss[-10:]) >= 5, (loss[0], loss[-10:])
+    assert (run / "loss.png").is_file() and (run / "beliefs" / "epoch_0500.png").is_file()
+
+    onnx_path, diff = export_checkpoint(run / "last.pt", tmp_path / "model.onnx")
+    assert diff <= 1e-4
+    onnx_model, torch_model = DopeModel(onnx_path), DopeModel(run / "last.pt")
+    assert onnx_model.object.name == "noodle_cup_red" and onnx_model.short_side == 160
+
+    report = evaluate(onnx_model, dataset, "train_pbr", min_visibility=0.9)
+    assert report["instances"] >= 4 and report["metric"] == "ADD"
+    assert all(m["add_m"] is not None and m["add_m"] < 0.02 for m in report["per_instance"]), report["per_instance"]
+    json_path, png = write_report(report, tmp_path / "eval")
+    assert json.loads(json_path.read_text())["ADD"]["pass_2cm"] == 1.0 and cv2.imread(str(png)) is not None
+
+    scene = dataset / "train_pbr" / "000000"
+    image = cv2.imread(str(scene / "rgb" / "000000.jpg"))[..., ::-1].copy()
+    K = np.array(json.loads((scene / "scene_camera.json").read_text())["0"]["cam_K"]).reshape(3, 3)
+    a, b = onnx_model.estimate(image, K), torch_model.estimate(image, K)
+    assert len(a) == len(b) >= 2
+    for x, y in zip(a, b):  # same maps up to 1e-4 -> same poses
+        assert np.abs(x.T - y.T).max() < 1e-3
+
+    assert main(["infer", "--model", str(onnx_path), "--image", str(scene / "rgb" / "000000.jpg"),
+                 "--K", str(K[0, 0]), str(K[1, 1]), str(K[0, 2]), str(K[1, 2]), "--out", str(tmp_path / "inf")]) == 0
+    doc = json.loads((tmp_path / "inf" / "000000_poses.json").read_text())
+    assert len(doc["instances"]) == len(a)
+    np.testing.assert_allclose(doc["instances"][0]["t_m"], a[0].T[:3, 3], atol=1e-6)
+    assert cv2.imread(str(tmp_path / "inf" / "000000_poses.png")).shape == (240, 320, 3)
+
+
+def test_resumed_training_continues_the_loss_curve_exactly(dataset, tmp_path):
+    straight = train(small(dataset, tmp_path / "straight", epochs=4))
+    part = train(small(dataset, tmp_path / "part", epochs=2))
+    with pytest.raises(PegasusError, match="not empty"):
+        train(small(dataset, part, epochs=4))
+    with pytest.raises(PegasusError, match="variant"):
+        train(small(dataset, part, epochs=4, variant="full"), resume=True)
+    resumed = train(small(dataset, part, epochs=4), resume=True)
+    a, b = losses(straight), losses(resumed)
+    assert len(a) == len(b) == 8 and [r[0] for r in a] == [r[0] for r in b]
+    np.testing.assert_allclose([r[1] for r in a], [r[1] for r in b], rtol=1e-5)
+    state = load_checkpoint(resumed / "last.pt")
+    assert state["epoch"] == 4 and state["step"] == 8 and state["optimizer"]["state"]
+    with pytest.raises(PegasusError, match="already trained 4 epochs"):
+        train(small(dataset, part, epochs=4), resume=True)
+
+
+def test_shards_cover_every_index_once_per_epoch():
+    for n, world in ((10, 3), (7, 2), (2, 4)):
+        for epoch in (0, 1):
+            shards = []
+            for rank in range(world):
+                sampler = ShardSampler(n, rank, world, seed=5)
+                sampler.set_epoch(epoch)
+                shards.append(list(sampler))
+                assert len(sampler) == len(shards[-1])
+            assert sorted(sum(shards, [])) == list(range(n))
+    a, b = ShardSampler(10), ShardSampler(10)
+    b.set_epoch(1)
+    assert list(a) != list(b)
+
+
+def test_torchrun_ddp_on_cpu_sees_each_image_once_per_epoch(dataset, tmp_path):
+    run = tmp_path / "ddp"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    result = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
+                             "--master_port", "29631", "-m", "pegasus_gen.cli", "train", "--data", str(dataset),
+                             "--object", "1", "--out", str(run), "--size", "64", "--batch-size", "1", "--epochs", "2",
+                             "--loader-workers", "0", "--device", "cpu"],
+                            capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    rows = losses(run)
+    for epoch in (0, 1):  # 4 images over 2 ranks with batch 1: 2 steps of 2 images each
+        assert [r[2] for r in rows if r[0] == epoch] == [2.0, 2.0]
+    assert load_checkpoint(run / "last.pt")["epoch"] == 2
+
+
+def test_add_and_adds_agree_with_brute_force_and_symmetry():
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(300, 3)) * [0.03, 0.03, 0.05]
+    T_gt, T_est = np.eye(4), np.eye(4)
+    T_gt[:3, 3] = [0.1, 0.0, 0.6]
+    angle = 0.3
+    T_est[:3, :3] = cv2.Rodrigues(np.array([0.0, 0.0, angle]))[0]
+    T_est[:3, 3] = [0.11, 0.0, 0.6]
+    est, gt = points @ T_est[:3, :3].T + T_est[:3, 3], points @ T_gt[:3, :3].T + T_gt[:3, 3]
+    brute_add = np.mean([np.linalg.norm(e - g) for e, g in zip(est, gt)])
+    brute_adds = np.mean([min(np.linalg.norm(g - e) for e in est) for g in gt])
+    assert add_error(points, T_est, T_gt) == pytest.approx(brute_add)
+    assert adds_error(points, T_est, T_gt) == pytest.approx(brute_adds)
+    # a cylinder's points turned about its axis: ADD sees the turn, ADD-S hardly
+    phi, z = rng.uniform(0, 2 * np.pi, 4000), rng.uniform(-0.05, 0.05, 4000)
+    cylinder = np.stack([0.04 * np.cos(phi), 0.04 * np.sin(phi), z], 1)
+    turned = np.eye(4)
+    turned[:3, :3] = cv2.Rodrigues(np.array([0.0, 0.0, 1.0]))[0]
+    assert add_error(cylinder, turned, np.eye(4)) > 0.03 > 0.002 > adds_error(cylinder, turned, np.eye(4))
+
+
+def test_auc_is_the_area_under_the_pass_rate_curve_and_misses_fail():
+    errors = np.array([0.0, 0.01, 0.03, 0.07, 0.2, np.inf])
+    thresholds = np.linspace(0, 0.1, 100001)
+    assert auc(errors) == pytest.approx(np.trapezoid(pass_rates(errors, thresholds), thresholds) / 0.1, abs=1e-4)
+    assert list(pass_rates(errors, (0.02, 0.05, 0.1))) == pytest.approx([2 / 6, 3 / 6, 4 / 6])
+    points = np.random.default_rng(1).normal(size=(50, 3)) * 0.05
+    truths = [np.eye(4), np.eye(4)]
+    truths[1][:3, 3] = [0.3, 0, 0]
+    near, far = np.eye(4), np.eye(4)
+    near[:3, 3], far[:3, 3] = [0.301, 0, 0], [2.0, 0, 0]
+    estimates = [ObjectPose(near, 0.9, np.zeros((9, 2)), 0.0), ObjectPose(far, 0.5, np.zeros((9, 2)), 0.0)]
+    pairs, extra = match_instances(points, truths, estimates[:1])
+    assert extra == 0 and pairs[0][1] is None and np.isinf(pairs[0][2]) and pairs[1][1] == 0
+    assert pairs[1][2] == pytest.approx(0.001)
+    pairs, extra = match_instances(points, truths[1:], estimates)
+    assert extra == 1 and pairs[0][1] == 0
+
+
+def test_cli_errors_are_clear(dataset, tmp_path, capsys):
+    assert main(["train", "--data", str(tmp_path / "none"), "--object", "1", "--out", str(tmp_path / "r")]) == 2
+    assert "no such dataset folder" in capsys.readouterr().err
+    assert main(["train", "--data", str(dataset), "--object", "teapot", "--out", str(tmp_path / "r")]) == 2
+    assert "no object named 'teapot'" in capsys.readouterr().err
+    (tmp_path / "broken.pt").write_bytes(b"not a checkpoint")
+    assert main(["export", str(tmp_path / "broken.pt")]) == 2
+    assert "not a readable checkpoint" in capsys.readouterr().err
+    assert not (tmp_path / "broken.onnx").exists()
