@@ -22,6 +22,8 @@ demo: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/render.py
 	$(BIN)/python benchmarks/assets.py
+	$(BIN)/python benchmarks/generate.py
+	$(BIN)/python benchmarks/dope.py
 
 setup: $(STAMP)
 

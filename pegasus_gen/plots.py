@@ -16,13 +16,8 @@ def _ticks(lo: float, hi: float, log: bool) -> list[float]:
             if len(ticks) >= 3:
                 break
         return ticks
-    step = 10 ** np.floor(np.log10(max(hi - lo, 1e-12)))
-    for factor in (1, 2, 5):
-        if (hi - lo) / (step * factor) <= 6:
-            step *= factor
-            break
-    else:
-        step *= 10
+    top = 10 ** np.floor(np.log10(max(hi - lo, 1e-12)))
+    step = next(s for s in (top * m for m in (5, 2, 1, 0.5, 0.2, 0.1)) if (hi - lo) / s >= 4)
     return list(np.arange(np.ceil(lo / step) * step, hi + step * 1e-9, step))
 
 

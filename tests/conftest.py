@@ -22,3 +22,20 @@ def random_cloud(rng: np.random.Generator, n: int, sh_degree: int = 3, labels=(0
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def dope_dataset(tmp_path_factory):
+    """A tiny BOP dataset for DOPE: 4 frames (320x240) of 3 red noodle cups seen from 0.28-0.32 m."""
+    from pegasus_gen.assets import AssetLibrary
+    from pegasus_gen.config import load_config
+    from pegasus_gen.demo_assets import build_demo_library
+    from pegasus_gen.generate import generate
+
+    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
+    build_demo_library(lib)
+    out = tmp_path_factory.mktemp("ds") / "ds"
+    return generate(load_config(None, [f"output={out}", f"library={lib.root}", "scenes=1", "frames_per_scene=4",
+                                       "camera.width=320", "camera.height=240", "device=cpu",
+                                       "environments=[wooden_table]", "objects=[{asset: 1, count: [1, 1]}]",
+                                       "trajectory.distance=[0.28, 0.32]"]))

@@ -17,23 +17,8 @@ from dope_training.evaluate import add_error, adds_error, auc, evaluate, match_i
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, ObjectPose
 from dope_training.train import ShardSampler, TrainConfig, train
-from pegasus_gen.assets import AssetLibrary
 from pegasus_gen.cli import main
-from pegasus_gen.config import load_config
-from pegasus_gen.demo_assets import build_demo_library
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.generate import generate
-
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
-    build_demo_library(lib)
-    out = tmp_path_factory.mktemp("ds") / "ds"
-    return generate(load_config(None, [f"output={out}", f"library={lib.root}", "scenes=1", "frames_per_scene=4",
-                                       "camera.width=320", "camera.height=240", "device=cpu",
-                                       "environments=[wooden_table]", "objects=[{asset: 1, count: [1, 1]}]",
-                                       "trajectory.distance=[0.28, 0.32]"]))
 
 
 def losses(run):
@@ -41,14 +26,14 @@ def losses(run):
         return [(int(r["epoch"]), float(r["loss"]), float(r["images"])) for r in csv.DictReader(f)]
 
 
-def small(dataset, out, **kw):
-    args = dict(data=[str(dataset)], object="noodle_cup_red", out=str(out), size=64, batch_size=2, epochs=2,
+def small(dope_dataset, out, **kw):
+    args = dict(data=[str(dope_dataset)], object="noodle_cup_red", out=str(out), size=64, batch_size=2, epochs=2,
                 augment=True, loader_workers=0, device="cpu")
     return TrainConfig(**{**args, **kw})
 
 
-def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dataset, tmp_path):
-    run = train(TrainConfig(data=[str(dataset)], object="noodle_cup_red", out=str(tmp_path / "run"), size=160,
+def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_dataset, tmp_path):
+    run = train(TrainConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(tmp_path / "run"), size=160,
                             batch_size=4, epochs=500, lr=1e-3, augment=False, loader_workers=0, device="cpu",
                             checkpoint_every=500))
     loss = [value for _, value, _ in losses(run)]
@@ -60,13 +45,13 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(datas
     onnx_model, torch_model = DopeModel(onnx_path), DopeModel(run / "last.pt")
     assert onnx_model.object.name == "noodle_cup_red" and onnx_model.short_side == 160
 
-    report = evaluate(onnx_model, dataset, "train_pbr", min_visibility=0.9)
+    report = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9)
     assert report["instances"] >= 4 and report["metric"] == "ADD"
     assert all(m["add_m"] is not None and m["add_m"] < 0.02 for m in report["per_instance"]), report["per_instance"]
     json_path, png = write_report(report, tmp_path / "eval")
     assert json.loads(json_path.read_text())["ADD"]["pass_2cm"] == 1.0 and cv2.imread(str(png)) is not None
 
-    scene = dataset / "train_pbr" / "000000"
+    scene = dope_dataset / "train_pbr" / "000000"
     image = cv2.imread(str(scene / "rgb" / "000000.jpg"))[..., ::-1].copy()
     K = np.array(json.loads((scene / "scene_camera.json").read_text())["0"]["cam_K"]).reshape(3, 3)
     a, b = onnx_model.estimate(image, K), torch_model.estimate(image, K)
@@ -82,21 +67,21 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(datas
     assert cv2.imread(str(tmp_path / "inf" / "000000_poses.png")).shape == (240, 320, 3)
 
 
-def test_resumed_training_continues_the_loss_curve_exactly(dataset, tmp_path):
-    straight = train(small(dataset, tmp_path / "straight", epochs=4))
-    part = train(small(dataset, tmp_path / "part", epochs=2))
+def test_resumed_training_continues_the_loss_curve_exactly(dope_dataset, tmp_path):
+    straight = train(small(dope_dataset, tmp_path / "straight", epochs=4))
+    part = train(small(dope_dataset, tmp_path / "part", epochs=2))
     with pytest.raises(PegasusError, match="not empty"):
-        train(small(dataset, part, epochs=4))
+        train(small(dope_dataset, part, epochs=4))
     with pytest.raises(PegasusError, match="variant"):
-        train(small(dataset, part, epochs=4, variant="full"), resume=True)
-    resumed = train(small(dataset, part, epochs=4), resume=True)
+        train(small(dope_dataset, part, epochs=4, variant="full"), resume=True)
+    resumed = train(small(dope_dataset, part, epochs=4), resume=True)
     a, b = losses(straight), losses(resumed)
     assert len(a) == len(b) == 8 and [r[0] for r in a] == [r[0] for r in b]
     np.testing.assert_allclose([r[1] for r in a], [r[1] for r in b], rtol=1e-5)
     state = load_checkpoint(resumed / "last.pt")
     assert state["epoch"] == 4 and state["step"] == 8 and state["optimizer"]["state"]
     with pytest.raises(PegasusError, match="already trained 4 epochs"):
-        train(small(dataset, part, epochs=4), resume=True)
+        train(small(dope_dataset, part, epochs=4), resume=True)
 
 
 def test_shards_cover_every_index_once_per_epoch():
@@ -114,11 +99,11 @@ def test_shards_cover_every_index_once_per_epoch():
     assert list(a) != list(b)
 
 
-def test_torchrun_ddp_on_cpu_sees_each_image_once_per_epoch(dataset, tmp_path):
+def test_torchrun_ddp_on_cpu_sees_each_image_once_per_epoch(dope_dataset, tmp_path):
     run = tmp_path / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     result = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
-                             "--master_port", "29631", "-m", "pegasus_gen.cli", "train", "--data", str(dataset),
+                             "--master_port", "29631", "-m", "pegasus_gen.cli", "train", "--data", str(dope_dataset),
                              "--object", "1", "--out", str(run), "--size", "64", "--batch-size", "1", "--epochs", "2",
                              "--loader-workers", "0", "--device", "cpu"],
                             capture_output=True, text=True, timeout=300, env=env)
@@ -168,10 +153,10 @@ def test_auc_is_the_area_under_the_pass_rate_curve_and_misses_fail():
     assert extra == 1 and pairs[0][1] == 0
 
 
-def test_cli_errors_are_clear(dataset, tmp_path, capsys):
+def test_cli_errors_are_clear(dope_dataset, tmp_path, capsys):
     assert main(["train", "--data", str(tmp_path / "none"), "--object", "1", "--out", str(tmp_path / "r")]) == 2
     assert "no such dataset folder" in capsys.readouterr().err
-    assert main(["train", "--data", str(dataset), "--object", "teapot", "--out", str(tmp_path / "r")]) == 2
+    assert main(["train", "--data", str(dope_dataset), "--object", "teapot", "--out", str(tmp_path / "r")]) == 2
     assert "no object named 'teapot'" in capsys.readouterr().err
     (tmp_path / "broken.pt").write_bytes(b"not a checkpoint")
     assert main(["export", str(tmp_path / "broken.pt")]) == 2

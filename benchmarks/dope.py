@@ -1,0 +1,93 @@
+"""DOPE speed: training images/s (full and light variants, CPU and CUDA when present) and ONNX inference
+latency at 640x480 on CPU (onnxruntime).
+
+Usage: python benchmarks/dope.py [--variants full light] [--devices cpu cuda] [--steps 5] [--runs 10]
+Training is timed on random 3x{crop} images with random targets (the data pipeline is not included: it
+runs in loader processes beside the GPU); the first step is not timed. Crops: full 400 px batch 8 (DOPE
+uses 32 on a GPU), light 320 px batch 8. Inference: the exported last stage on a 640x480 image (the input
+size the network sees when an image is not rescaled), median of ``--runs`` after one warm-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import tempfile
+import time
+
+import numpy as np
+import onnxruntime
+import torch
+
+from dope_training.export import export_onnx
+from dope_training.model import DopeNetwork, ModelConfig, dope_loss
+
+CROPS = {"full": 400, "light": 320}
+
+
+def train_rate(variant: str, device: str, steps: int, batch: int = 8) -> float:
+    """Images/s of forward + backward + Adam step (AMP on CUDA) at the variant's crop size."""
+    size = CROPS[variant]
+    model = DopeNetwork(ModelConfig.of(variant)).to(device).train()
+    optimiser = torch.optim.Adam(model.parameters(), 1e-4)
+    scaler = torch.amp.GradScaler("cuda", enabled=device == "cuda")
+    image = torch.rand(batch, 3, size, size, device=device)
+    beliefs = torch.rand(batch, 9, size // 8, size // 8, device=device)
+    affinities = torch.rand(batch, 16, size // 8, size // 8, device=device) * 2 - 1
+    times = []
+    for _ in range(steps + 1):
+        if device == "cuda":
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        with torch.autocast(device, dtype=torch.float16, enabled=device == "cuda"):
+            outputs = model(image)
+        loss = dope_loss([(b.float(), a.float()) for b, a in outputs], beliefs, affinities)
+        optimiser.zero_grad()
+        scaler.scale(loss).backward()
+        scaler.step(optimiser)
+        scaler.update()
+        if device == "cuda":
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - t0)
+    return batch / float(np.median(times[1:]))
+
+
+def onnx_latency_ms(variant: str, runs: int) -> float:
+    """Median ms of one 640x480 image through the exported network on onnxruntime's CPU provider."""
+    model = DopeNetwork(ModelConfig.of(variant))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = export_onnx(model, os.path.join(tmp, "dope.onnx"))
+        session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    image = np.random.default_rng(0).random((1, 3, 480, 640), dtype=np.float32)
+    session.run(None, {"image": image})
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        session.run(None, {"image": image})
+        times.append(time.perf_counter() - t0)
+    return 1000 * float(np.median(times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--variants", nargs="+", default=["full", "light"], choices=list(CROPS))
+    parser.add_argument("--devices", nargs="+", default=["cpu", "cuda"], choices=["cpu", "cuda"])
+    parser.add_argument("--steps", type=int, default=5)
+    parser.add_argument("--runs", type=int, default=10)
+    args = parser.parse_args()
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}, "
+          f"{torch.get_num_threads()} threads" + (f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ""))
+    for device in args.devices:
+        if device == "cuda" and not torch.cuda.is_available():
+            print("cuda: no CUDA device, skipped")
+            continue
+        for variant in args.variants:
+            rate = train_rate(variant, device, args.steps)
+            print(f"train {variant:5s} {CROPS[variant]} px, batch 8, {device}: {rate:7.2f} images/s")
+    for variant in args.variants:
+        print(f"onnxruntime CPU {variant:5s} 640x480: {onnx_latency_ms(variant, args.runs):7.1f} ms/image")
+
+
+if __name__ == "__main__":
+    main()
