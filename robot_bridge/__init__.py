@@ -1,1 +1,2 @@
-"""UR5 bridge over ur-rtde and a simulated UR controller (built in a later milestone)."""
+"""UR5 bridge: kinematics from the DH table (here now); the ur-rtde client wrapper, the simulated UR
+controller, grasp planning and the safety envelope follow."""
