@@ -1,0 +1,46 @@
+"""The safety envelope: every limit refuses with its reason; joint moves are checked along the way."""
+
+import numpy as np
+import pytest
+
+from pegasus_gen.errors import PegasusError
+from robot_bridge.kinematics import fk, matrix_to_pose
+from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
+
+TOOL_DOWN = np.array([0.0, -1.8, 1.8, -1.57, -1.57, 0.0])  # TCP at (-0.39, -0.11, 0.42), tool pointing down
+
+
+def test_each_limit_refuses_with_its_reason():
+    env = SafetyEnvelope(x=(-0.6, 0.6), y=(-0.6, 0.6), z=(-0.1, 0.8), table_z=0.02, min_height=0.01)
+    home = fk(TOOL_DOWN)
+    env.check_pose(home)
+    env.check_pose(matrix_to_pose(home))
+    cases = {"x = 0.700": [0.7, 0, 0.3], "y = -0.650": [0.1, -0.65, 0.3], "above the table top": [0.1, 0.1, 0.025]}
+    for reason, xyz in cases.items():
+        T = home.copy()
+        T[:3, 3] = xyz
+        with pytest.raises(UnsafeCommand, match=reason):
+            env.check_pose(T)
+    tilted = home.copy()
+    a = np.radians(70)
+    tilted[:3, :3] = home[:3, :3] @ np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    with pytest.raises(UnsafeCommand, match="tilted 70.0 deg"):
+        env.check_pose(tilted)
+    for speed, acc in ((0.0, 1.0), (0.6, 1.0), (0.2, 2.0)):
+        with pytest.raises(UnsafeCommand, match="refused"):
+            env.check_linear(home, home, speed, acc)
+    with pytest.raises(PegasusError, match="max_tilt_deg"):
+        SafetyEnvelope(max_tilt_deg=95)
+
+
+def test_joint_move_with_safe_ends_but_an_unsafe_middle_is_refused():
+    env = SafetyEnvelope(y=(-0.3, 0.8))
+    start = TOOL_DOWN.copy()  # pan 0: TCP at y = -0.11
+    end = TOOL_DOWN.copy()
+    end[0] = np.pi  # pan pi: TCP at y = +0.11; turning through pan pi/2 passes y = -0.39
+    env.check_pose(fk(start))
+    env.check_pose(fk(end))
+    with pytest.raises(UnsafeCommand, match="moveJ refused at .* y = -0.3"):
+        env.check_joint(start, end, 0.5, 1.0)
+    end[0] = -np.pi  # the other way round passes y = +0.39: inside
+    env.check_joint(start, end, 0.5, 1.0)
