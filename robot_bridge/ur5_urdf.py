@@ -19,6 +19,12 @@ JOINT_NAMES = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wris
 LINK_RADIUS = 0.045  # m
 MAX_JOINT_SPEED = 3.15  # rad/s (UR5: 180 deg/s)
 MAX_JOINT_TORQUE = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0)  # N m
+# Parallel-jaw gripper on the flange (flange frame: z along the tool): a body, two fingers sliding along y.
+GRIPPER_BODY = (0.06, 0.13, 0.07)  # m, x y z
+FINGER = (0.02, 0.012, 0.06)  # m, x y z
+GRIPPER_STROKE = 0.085  # m, widest opening between the fingers (as a Robotiq 2F-85)
+GRIPPER_FORCE = 60.0  # N per finger
+TCP_Z = GRIPPER_BODY[2] + FINGER[2] - 0.015  # m: the TCP sits between the fingertips
 
 
 def _rpy_of_rx(alpha: float) -> str:
@@ -58,8 +64,41 @@ def _link(i: int) -> str:
     return f'<link name="link_{i}">{inertial}{housing}{body}</link>'
 
 
-def ur5_urdf() -> str:
-    """The URDF text: base_link, link_1..link_6 on the six revolute joints (JOINT_NAMES), flange."""
+def _box_link(name: str, size, xyz, mass: float) -> str:
+    sx, sy, sz = size
+    shape = f'<box size="{sx} {sy} {sz}"/>'
+    origin = f'<origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}"/>'
+    i = mass / 12
+    return (f'<link name="{name}"><inertial>{origin}<mass value="{mass}"/><inertia ixx="{i * (sy**2 + sz**2):.4g}" '
+            f'iyy="{i * (sx**2 + sz**2):.4g}" izz="{i * (sx**2 + sy**2):.4g}" ixy="0" ixz="0" iyz="0"/></inertial>'
+            f"<visual>{origin}<geometry>{shape}</geometry></visual>"
+            f"<collision>{origin}<geometry>{shape}</geometry></collision></link>")
+
+
+def _gripper() -> list[str]:
+    """The gripper body on the flange, fingers ``finger_left``/``finger_right`` (prismatic, 0 = open to
+    0.5 * GRIPPER_STROKE = closed, each moving towards the centre) and a ``tcp`` link."""
+    bx, by, bz = GRIPPER_BODY
+    fx, fy, fz = FINGER
+    half = GRIPPER_STROKE / 2
+    parts = [_box_link("gripper_body", GRIPPER_BODY, (0, 0, bz / 2), 0.9),
+             '<joint name="gripper_mount" type="fixed"><parent link="flange"/><child link="gripper_body"/>'
+             '<origin xyz="0 0 0"/></joint>']
+    for name, side in (("finger_left", 1), ("finger_right", -1)):
+        parts.append(_box_link(name, FINGER, (0, side * fy / 2, fz / 2), 0.08))
+        parts.append(f'<joint name="{name}_joint" type="prismatic"><parent link="gripper_body"/><child link="{name}"/>'
+                     f'<origin xyz="0 {side * half} {bz}"/><axis xyz="0 {-side} 0"/>'
+                     f'<limit lower="0" upper="{half}" effort="{GRIPPER_FORCE}" velocity="0.15"/></joint>')
+    parts.append('<link name="tcp"><inertial><mass value="0.001"/>'
+                 '<inertia ixx="1e-7" iyy="1e-7" izz="1e-7" ixy="0" ixz="0" iyz="0"/></inertial></link>')
+    parts.append(f'<joint name="tcp_joint" type="fixed"><parent link="flange"/><child link="tcp"/>'
+                 f'<origin xyz="0 0 {TCP_Z}"/></joint>')
+    return parts
+
+
+def ur5_urdf(gripper: bool = False) -> str:
+    """The URDF text: base_link, link_1..link_6 on the six revolute joints (JOINT_NAMES), flange, and with
+    ``gripper`` the parallel-jaw gripper and its ``tcp`` link (TCP_Z in front of the flange)."""
     parts = ['<?xml version="1.0"?>', '<robot name="ur5_dh">',
              '<link name="base_link"><inertial><mass value="4.0"/>'
              '<inertia ixx="0.0061" iyy="0.0061" izz="0.0056" ixy="0" ixz="0" iyz="0"/></inertial>'
@@ -80,5 +119,7 @@ def ur5_urdf() -> str:
                  '<inertia ixx="1e-7" iyy="1e-7" izz="1e-7" ixy="0" ixz="0" iyz="0"/></inertial></link>')
     parts.append(f'<joint name="flange_joint" type="fixed"><parent link="link_6"/><child link="flange"/>'
                  f'<origin xyz="{A[5]} 0 {D[5]}" rpy="{_rpy_of_rx(ALPHA[5])}"/></joint>')
+    if gripper:
+        parts += _gripper()
     parts.append("</robot>")
     return "\n".join(parts) + "\n"
