@@ -30,8 +30,10 @@ class SafetyEnvelope:
     table_z: float = 0.0  # table top in the base frame, m
     min_height: float = 0.01  # m of the TCP above the table top
     max_tilt_deg: float = 60.0  # tool z axis from straight down (< 90)
-    max_speed: float = 0.5  # m/s (moveL), rad/s (moveJ)
-    max_acceleration: float = 1.5  # m/s^2, rad/s^2
+    max_speed: float = 0.5  # m/s (moveL)
+    max_acceleration: float = 1.5  # m/s^2
+    max_joint_speed: float = 1.6  # rad/s (moveJ)
+    max_joint_acceleration: float = 3.0  # rad/s^2
     samples: int = 50  # points checked along a joint move
 
     def __post_init__(self):
@@ -65,13 +67,16 @@ class SafetyEnvelope:
         if found:
             raise UnsafeCommand(f"{what} refused: " + "; ".join(found))
 
-    def check_motion(self, speed: float, acceleration: float, unit: str = "m") -> None:
-        """Raise UnsafeCommand for a non-positive or too high speed or acceleration."""
-        if not 0 < speed <= self.max_speed:
-            raise UnsafeCommand(f"speed {speed} {unit}/s refused: must be within (0, {self.max_speed}]")
-        if not 0 < acceleration <= self.max_acceleration:
-            raise UnsafeCommand(f"acceleration {acceleration} {unit}/s^2 refused: must be within "
-                                f"(0, {self.max_acceleration}]")
+    def check_motion(self, speed: float, acceleration: float, joint: bool = False) -> None:
+        """Raise UnsafeCommand for a non-positive or too high speed or acceleration (of the TCP, or of the
+        joints with ``joint``)."""
+        unit = "rad" if joint else "m"
+        limits = (self.max_joint_speed, self.max_joint_acceleration) if joint else (self.max_speed,
+                                                                                    self.max_acceleration)
+        if not 0 < speed <= limits[0]:
+            raise UnsafeCommand(f"speed {speed} {unit}/s refused: must be within (0, {limits[0]}]")
+        if not 0 < acceleration <= limits[1]:
+            raise UnsafeCommand(f"acceleration {acceleration} {unit}/s^2 refused: must be within (0, {limits[1]}]")
 
     def check_linear(self, T_start: np.ndarray, target, speed: float, acceleration: float) -> None:
         """A moveL from the TCP pose ``T_start`` [4, 4] to ``target``."""
@@ -82,7 +87,7 @@ class SafetyEnvelope:
     def check_joint(self, q_start, q_target, speed: float, acceleration: float,
                     tcp: np.ndarray | None = None) -> None:
         """A moveJ from joints ``q_start`` [6] to ``q_target`` [6] (rad), TCP = flange @ ``tcp``."""
-        self.check_motion(speed, acceleration, unit="rad")
+        self.check_motion(speed, acceleration, joint=True)
         q_start, q_target = np.asarray(q_start, float), np.asarray(q_target, float)
         for s in np.linspace(0.0, 1.0, self.samples):
             found = self.problems(fk(q_start + s * (q_target - q_start), tcp))

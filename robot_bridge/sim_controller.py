@@ -12,7 +12,7 @@ What it serves:
   interpreted line by line: the controller emulates what it does over the RTDE registers (signal ready /
   done in output_int_register_0, async progress in output_int_register_2, commands in
   input_int_register_0 with arguments in input_double_register_0.., register offset 0 or 24 as the
-  script's injection says): movej (1), movel (3), stopl (33), stopj (34), set_tcp (29), protective_stop
+  script's injection says; async progress as ur-rtde 1.6 encodes it): movej (1), movel (3), stopl (33), stopj (34), set_tcp (29), protective_stop
   (31), get_inverse_kin_args (30), is_steady (47), speed_stop (15), servo_stop (16), and stop script (255).
   Unknown commands are logged and answered done, so the client does not hang.
 - Robot state: robot_mode 7 (RUNNING), safety_mode 1 (NORMAL) or 3 (PROTECTIVE_STOP), robot_status_bits
@@ -48,6 +48,7 @@ POLYSCOPE_VERSION = "URSoftware 5.11.1.108318 (Mar 17 2021)"
 ROBOT_MODE_RUNNING, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP = 7, 1, 3
 RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2
 READY, DONE = 1, 2
+GRIPPER_METRES_PER_VOLT = 0.01  # the gripper reports its opening on standard analog input 0
 REALTIME_COMMANDS = {24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71}
 
 
@@ -167,6 +168,7 @@ class SimController:
             "runtime_state": RUNTIME_PLAYING if s.program_running else RUNTIME_STOPPED,
             "actual_digital_output_bits": s.digital_out | (s.tool_digital_out << 16),
             "speed_scaling": s.speed_slider, "target_speed_fraction": s.speed_slider,
+            "standard_analog_input0": sim.gripper_width() / GRIPPER_METRES_PER_VOLT,
             "actual_main_voltage": 48.0, "actual_robot_voltage": 48.0, "joint_temperatures": (30.0,) * 6,
         }
         if name in values:
@@ -247,6 +249,7 @@ class SimController:
         if c == "unlock protective stop":
             with self.lock:
                 s.protective_stop = False
+                self.sim.collision = None
             return "Protective stop releasing"
         if c in ("close popup", "close safety popup", "clear operational mode"):
             return {"close popup": "closing popup", "close safety popup": "closing safety popup"}.get(
@@ -381,6 +384,8 @@ class SimController:
                     self._program.tick()
                 if not self.state.protective_stop:
                     self.sim.advance(dt)
+                    if self.sim.collision:
+                        self.protective_stop(self.sim.collision)
             next_tick += dt
             time.sleep(max(0.0, next_tick - time.monotonic()))
 
@@ -401,8 +406,9 @@ class _ControlProgram:
         self.c, self.offset = controller, offset
         self.executing = False
         self.waiting_motion = False  # a synchronous move is running: 'done' when it ends
-        self.async_finished = -2
-        self._signal_async_finished()
+        self.async_motion = False  # an asynchronous one is: progress 'finished' when it ends
+        self.async_writes, self.async_op_id = 0, 0
+        self._write_async_progress(-1)
         self._write_int(0, READY)
 
     def _int(self, i):
@@ -415,15 +421,21 @@ class _ControlProgram:
         return np.array([self._double(start + k) for k in range(n)])
 
     def _write_int(self, i, value):
-        # signal registers are written without the offset for 2 (async progress), as the script does
-        self.c.state.outputs[f"output_int_register_{i + (self.offset if i != 2 else 0)}"] = int(value)
+        self.c.state.outputs[f"output_int_register_{i + self.offset}"] = int(value)
 
     def _write_double(self, i, value):
         self.c.state.outputs[f"output_double_register_{i + self.offset}"] = float(value)
 
-    def _signal_async_finished(self):
-        self.async_finished = -2 if self.async_finished == -1 else -1
-        self._write_int(2, self.async_finished)
+    def _write_async_progress(self, value: int) -> None:
+        """output_int_register_2 as ur-rtde 1.6's script writes it: bits 24-30 operation id (counted up when an
+        operation starts, value 0), 16-22 write count, bit 15 running, 0-14 progress; value < 0: finished."""
+        self.async_writes = (self.async_writes + 1) % 128
+        if value == 0:
+            self.async_op_id = (self.async_op_id + 1) % 128
+        register = self.async_writes * 65536 + self.async_op_id * 16777216
+        if value >= 0:
+            register += (value & 0x7FFF) + 32768
+        self._write_int(2, register)
 
     def tick(self) -> None:
         sim = self.c.sim
@@ -432,9 +444,9 @@ class _ControlProgram:
                 return
             self.waiting_motion = False
             self._write_int(0, DONE)
-        if getattr(self, "async_motion", False) and not sim.moving:
+        if self.async_motion and not sim.moving:
             self.async_motion = False
-            self._signal_async_finished()
+            self._write_async_progress(-1)
         cmd = self._int(0)
         if cmd in REALTIME_COMMANDS:
             self.c.record(f"realtime command {cmd} (not simulated)")
@@ -471,14 +483,17 @@ class _ControlProgram:
                 return False
             if asynchronous:
                 self.async_motion = True
-                self._write_int(2, 0)  # operation started
+                self._write_async_progress(0)
             else:
                 self.waiting_motion = True
             return True
         if cmd in (33, 34):  # stopl / stopj: deceleration [0], async flag int 1
             c.record(f"{'stopL' if cmd == 33 else 'stopJ'} a={self._double(0):g}")
             sim.stop(self._double(0) or 10.0)
-            if self._int(1) != 1:
+            if self._int(1) == 1:
+                self.async_motion = True
+                self._write_async_progress(0)
+            else:
                 self.waiting_motion = True
             return True
         if cmd == 29:  # set_tcp
@@ -489,6 +504,10 @@ class _ControlProgram:
             T = pose_to_matrix(self._doubles(0, 6)) @ np.linalg.inv(sim.tcp)
             q = nearest_ik(T, self._doubles(6, 6))
             for k, v in enumerate(q if q is not None else sim.q):
+                self._write_double(k, v)
+            return True
+        if cmd == 40:  # get_tcp_offset
+            for k, v in enumerate(matrix_to_pose(sim.tcp)):
                 self._write_double(k, v)
             return True
         if cmd == 43:  # get_forward_kinematics_default
@@ -503,6 +522,67 @@ class _ControlProgram:
             return False
         c.record(f"command {cmd} not simulated: answered done")
         return True
+
+
+class SimControllerProcess:
+    """The simulated controller in a child process (ur-rtde's Python bindings hold the GIL while they wait
+    on the controller, so client and controller cannot share a process): ``start()`` returns once the
+    ports answer; ``log_lines()`` reads what reached the cell; ``kill()`` ends it abruptly."""
+
+    def __init__(self, host: str = "127.0.0.1", log_path=None, rate: float = 125.0):
+        import tempfile
+        from pathlib import Path
+
+        self.host, self.rate = host, rate
+        self.log_path = Path(log_path) if log_path else Path(tempfile.mkstemp(prefix="sim_ur_", suffix=".log")[1])
+        self.process = None
+
+    def start(self, timeout: float = 20.0) -> "SimControllerProcess":
+        import subprocess
+        import sys
+
+        self.process = subprocess.Popen([sys.executable, "-m", "robot_bridge.sim_controller", "--host", self.host,
+                                         "--log", str(self.log_path), "--rate", str(self.rate)],
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            if self.process.poll() is not None:
+                raise RuntimeError(f"simulated UR controller exited: {self.process.stderr.read().decode()[-2000:]}")
+            try:
+                socket.create_connection((self.host, DASHBOARD_PORT), timeout=0.2).close()
+                socket.create_connection((self.host, RTDE_PORT), timeout=0.2).close()
+                return self
+            except OSError:
+                time.sleep(0.1)
+        self.kill()
+        raise RuntimeError(f"simulated UR controller did not come up on {self.host} within {timeout:.0f} s")
+
+    def log_lines(self) -> list[str]:
+        return self.log_path.read_text().splitlines() if self.log_path.is_file() else []
+
+    def stop(self) -> None:
+        import subprocess
+
+        if self.process is not None and self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.process = None
+
+    def kill(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+        self.process = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
 
 
 def main(argv=None) -> int:

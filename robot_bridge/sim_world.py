@@ -21,7 +21,7 @@ import pybullet as pb
 from scipy.spatial.transform import Rotation, Slerp
 
 from robot_bridge.kinematics import fk, nearest_ik
-from robot_bridge.ur5_urdf import GRIPPER_STROKE, TCP_Z, ur5_urdf
+from robot_bridge.ur5_urdf import GRIPPER_FORCE, GRIPPER_STROKE, TCP_Z, ur5_urdf
 
 HOME_Q = np.array([0.0, -1.8, 1.8, -1.57, -1.57, 0.0])  # rad: TCP pointing down in front of the base
 
@@ -149,6 +149,10 @@ class RobotSim:
         names = [pb.getJointInfo(self.robot, j, physicsClientId=self.client)[1].decode()
                  for j in range(pb.getNumJoints(self.robot, physicsClientId=self.client))]
         self.fingers = [names.index("finger_left_joint"), names.index("finger_right_joint")]
+        # links whose contact with anything is a collision: upper arm to wrist 3 and the gripper body (the
+        # shoulder, link 0, sits on the mounting surface)
+        self.rigid_links = set(range(1, 6)) | {names.index("gripper_mount")}
+        self.collision: str | None = None  # what the arm hit, once it has
         for link in self.fingers:
             pb.changeDynamics(self.robot, link, lateralFriction=1.5, physicsClientId=self.client)
         self.tcp = np.eye(4)
@@ -209,9 +213,18 @@ class RobotSim:
         self._time_debt += dt
         target = GRIPPER_STROKE / 2 if self.gripper_closed else 0.0
         pb.setJointMotorControlArray(self.robot, self.fingers, pb.POSITION_CONTROL, targetPositions=[target] * 2,
-                                     forces=[60.0, 60.0], physicsClientId=self.client)
+                                     forces=[GRIPPER_FORCE] * 2, physicsClientId=self.client)
         while self._time_debt >= self.time_step:
             self._set_joints(self.q, self.qd)
             pb.stepSimulation(physicsClientId=self.client)
             self._time_debt -= self.time_step
         self._set_joints(self.q, self.qd)
+        for contact in pb.getContactPoints(bodyA=self.robot, physicsClientId=self.client):
+            other, link, depth = contact[2], contact[3], -contact[8]
+            if other == self.robot or depth < 0.001:
+                continue
+            static = pb.getDynamicsInfo(other, -1, physicsClientId=self.client)[0] == 0
+            if link in self.rigid_links or (link in self.fingers and static):  # fingers may touch what they grasp
+                self.collision = f"robot link {link} hit body {other} ({depth * 1000:.1f} mm deep)"
+                self.motion, self.qd = None, np.zeros(6)
+                break

@@ -1,0 +1,149 @@
+"""The real ur-rtde 1.6.5 client and our bridge against the simulated UR controller (a child process on
+its own loopback address): state, moveL/moveJ accuracy, asynchronous move then stop, the gripper on a
+digital output, stopScript, reconnecting after a restart, refusals that send nothing, a killed
+controller giving a clean error, a collision giving a protective stop."""
+
+import itertools
+import os
+import time
+
+import numpy as np
+import pytest
+import rtde_control
+import rtde_io
+import rtde_receive
+from scipy.spatial.transform import Rotation
+
+from robot_bridge.bridge import UR5, BridgeConfig, RobotConnectionError, RobotError
+from robot_bridge.kinematics import fk, pose_to_matrix
+from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
+from robot_bridge.sim_controller import SimControllerProcess
+from robot_bridge.sim_world import HOME_Q
+from robot_bridge.ur5_urdf import GRIPPER_STROKE, TCP_Z
+
+_hosts = (f"127.0.{os.getpid() % 200 + 20}.{n}" for n in itertools.count(2))
+
+
+@pytest.fixture
+def controller():
+    with SimControllerProcess(next(_hosts)) as sim:
+        yield sim
+
+
+def angle_deg(A, B):
+    return np.degrees(Rotation.from_matrix(A[:3, :3].T @ B[:3, :3]).magnitude())
+
+
+def test_ur_rtde_client_reads_state_moves_and_sets_io(controller):
+    host = controller.host
+    receive = rtde_receive.RTDEReceiveInterface(host)
+    control = rtde_control.RTDEControlInterface(host)
+    io = rtde_io.RTDEIOInterface(host)
+    try:
+        np.testing.assert_allclose(receive.getActualQ(), HOME_Q, atol=1e-9)
+        tcp = np.eye(4)
+        tcp[2, 3] = TCP_Z
+        np.testing.assert_allclose(pose_to_matrix(receive.getActualTCPPose()), fk(HOME_Q, tcp), atol=1e-9)
+        assert control.isProgramRunning() and receive.getRobotMode() == 7 and receive.getSafetyMode() == 1
+        np.testing.assert_allclose(control.getTCPOffset(), [0, 0, TCP_Z, 0, 0, 0], atol=1e-12)
+
+        target = pose_to_matrix(receive.getActualTCPPose())
+        target[:3, 3] += [0.08, 0.05, -0.1]
+        target[:3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix() @ target[:3, :3]
+        assert control.moveL(np.r_[target[:3, 3], Rotation.from_matrix(target[:3, :3]).as_rotvec()].tolist(), 0.3, 1.2)
+        reached = pose_to_matrix(receive.getActualTCPPose())
+        assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) < 1e-3 and angle_deg(reached, target) < 0.5
+
+        q = HOME_Q + [0.3, 0.1, -0.2, 0.2, 0.1, -0.4]
+        assert control.moveJ(q.tolist(), 1.0, 2.0)
+        np.testing.assert_allclose(receive.getActualQ(), q, atol=1e-4)
+
+        start = np.array(receive.getActualTCPPose())
+        far = start.copy()
+        far[1] -= 0.3
+        assert control.moveL(far.tolist(), 0.1, 0.5, True)  # asynchronous: returns at once
+        time.sleep(0.8)
+        assert control.getAsyncOperationProgressEx().isAsyncOperationRunning()
+        control.stopL(2.0)
+        time.sleep(0.3)
+        halted = np.array(receive.getActualTCPPose())
+        assert 0.02 < abs(halted[1] - start[1]) < 0.25 and np.abs(receive.getActualQd()).max() < 1e-6
+
+        assert receive.getStandardAnalogInput0() * 0.01 == pytest.approx(GRIPPER_STROKE, abs=1e-3)
+        assert io.setStandardDigitalOut(0, True)
+        time.sleep(1.0)
+        assert receive.getDigitalOutState(0) and receive.getStandardAnalogInput0() * 0.01 < 0.005  # closed
+        assert io.setStandardDigitalOut(0, False)
+        time.sleep(1.0)
+        assert receive.getStandardAnalogInput0() * 0.01 > GRIPPER_STROKE - 0.005
+
+        control.stopScript()
+        time.sleep(0.2)
+        assert not control.isProgramRunning() and receive.getRuntimeState() == 1
+    finally:
+        for interface in (control, io, receive):
+            interface.disconnect()
+    log = "\n".join(controller.log_lines())
+    assert "moveL" in log and "moveJ" in log and "stopL" in log and "stopScript" in log
+
+
+def test_bridge_reconnects_after_the_controller_restarts():
+    host = next(_hosts)
+    with SimControllerProcess(host):
+        with UR5(BridgeConfig(host=host)) as robot:
+            robot.move_j(HOME_Q + [0.1, 0, 0, 0, 0, 0])
+    with SimControllerProcess(host):
+        with UR5(BridgeConfig(host=host)) as robot:  # a fresh controller, a fresh connection
+            np.testing.assert_allclose(robot.joint_positions(), HOME_Q, atol=1e-9)
+            robot.move_j(HOME_Q + [0.1, 0, 0, 0, 0, 0])
+            np.testing.assert_allclose(robot.joint_positions(), HOME_Q + [0.1, 0, 0, 0, 0, 0], atol=1e-4)
+
+
+def test_unsafe_commands_are_refused_and_nothing_is_sent(controller):
+    envelope = SafetyEnvelope(z=(0.05, 0.9), min_height=0.05)
+    with UR5(BridgeConfig(host=controller.host, envelope=envelope)) as robot:
+        low = robot.tcp_pose()
+        low[2, 3] = 0.02
+        with pytest.raises(UnsafeCommand, match="above the table top"):
+            robot.move_l(low)
+        with pytest.raises(UnsafeCommand, match="speed"):
+            robot.move_l(robot.tcp_pose(), speed=3.0)
+        tilted = robot.tcp_pose()
+        tilted[:3, :3] = Rotation.from_euler("x", 80, degrees=True).as_matrix() @ tilted[:3, :3]
+        with pytest.raises(UnsafeCommand, match="tilted"):
+            robot.move_l(tilted)
+    assert not any("moveL" in line for line in controller.log_lines())
+
+
+def test_dry_run_sends_nothing(controller):
+    with UR5(BridgeConfig(host=controller.host, dry_run=True)) as robot:
+        target = robot.tcp_pose()
+        target[0, 3] += 0.05
+        robot.move_l(target)
+        robot.gripper_close()
+        np.testing.assert_allclose(robot.joint_positions(), HOME_Q, atol=1e-9)
+    log = "\n".join(controller.log_lines())
+    assert "moveL" not in log and "digital_output" not in log and "program" not in log
+
+
+def test_killing_the_controller_mid_move_is_a_clean_error_not_a_hang(controller):
+    with UR5(BridgeConfig(host=controller.host, stale_after=0.5)) as robot:
+        target = robot.tcp_pose()
+        target[1, 3] -= 0.3
+        import threading
+
+        threading.Timer(0.6, controller.kill).start()
+        t0 = time.monotonic()
+        with pytest.raises(RobotConnectionError, match="lost"):
+            robot.move_l(target, speed=0.1)
+        assert time.monotonic() - t0 < 5.0
+
+
+def test_a_collision_is_a_protective_stop_and_the_bridge_reports_it(controller):
+    envelope = SafetyEnvelope(z=(-0.5, 0.9), min_height=-0.5)  # the envelope lets it through; the table does not
+    with UR5(BridgeConfig(host=controller.host, envelope=envelope)) as robot:
+        down = robot.tcp_pose()
+        down[2, 3] = -0.05  # the gripper body would go through the table top (z = 0)
+        with pytest.raises(RobotError, match="protective stop"):
+            robot.move_l(down, speed=0.2)
+        assert robot.protective_stopped() and robot.tcp_pose()[2, 3] > 0.0
