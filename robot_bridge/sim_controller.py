@@ -68,8 +68,9 @@ class SimController:
     apart) and runs the cell at ``rate`` Hz in a thread; ``stop()`` closes everything."""
 
     def __init__(self, host: str = "127.0.0.1", sim: RobotSim | None = None, rate: float = 125.0,
-                 gripper_output: int = 0, max_frequency: float = 125.0):
+                 gripper_output: int = 0, max_frequency: float = 125.0, time_scale: float = 1.0):
         self.host, self.rate, self.gripper_output, self.max_frequency = host, rate, gripper_output, max_frequency
+        self.time_scale = time_scale  # simulated seconds per wall-clock second (> 1: faster than real time)
         self.sim = sim if sim is not None else RobotSim()
         self.state = ControllerState()
         self.log: list[tuple[float, str]] = []
@@ -214,9 +215,43 @@ class SimController:
                 if command == "quit":
                     return
 
+    def _sim_answer(self, words: list[str]) -> str:
+        """Simulation-only dashboard commands (no UR controller has them), for tests and the sim loop:
+        ``sim add NAME URDF x y z qx qy qz qw``, ``sim pose NAME`` (-> x y z qx qy qz qw, base frame),
+        ``sim remove NAME``, ``sim basket x y z`` (adds the basket), ``sim in_basket NAME`` (-> true/false)."""
+        from scipy.spatial.transform import Rotation
+
+        sim = self.sim
+        try:
+            verb, args = words[0], words[1:]
+            with self.lock:
+                if verb == "add":
+                    values = [float(v) for v in args[2:9]]
+                    T = np.eye(4)
+                    T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
+                    T[:3, 3] = values[:3]
+                    sim.add_object(args[0], args[1], T)
+                    return f"added {args[0]}"
+                if verb == "pose":
+                    T = sim.object_pose(args[0])
+                    return " ".join(f"{v:.9f}" for v in [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_quat()])
+                if verb == "remove":
+                    sim.remove_object(args[0])
+                    return f"removed {args[0]}"
+                if verb == "basket":
+                    sim.add_basket([float(v) for v in args[:3]])
+                    return "basket added"
+                if verb == "in_basket":
+                    return str(sim.in_basket(args[0])).lower()
+        except (IndexError, KeyError, ValueError) as exc:
+            return f"sim: error: {exc!r}"
+        return f"sim: unknown command {words}"
+
     def _dashboard_answer(self, command: str) -> str:
         s = self.state
         c = command.lower()
+        if c.startswith("sim "):
+            return self._sim_answer(command.split()[1:])
         if c == "polyscopeversion":
             return POLYSCOPE_VERSION
         if c == "version":
@@ -383,7 +418,7 @@ class SimController:
                 if self._program is not None:
                     self._program.tick()
                 if not self.state.protective_stop:
-                    self.sim.advance(dt)
+                    self.sim.advance(dt * self.time_scale)
                     if self.sim.collision:
                         self.protective_stop(self.sim.collision)
             next_tick += dt
@@ -529,11 +564,11 @@ class SimControllerProcess:
     on the controller, so client and controller cannot share a process): ``start()`` returns once the
     ports answer; ``log_lines()`` reads what reached the cell; ``kill()`` ends it abruptly."""
 
-    def __init__(self, host: str = "127.0.0.1", log_path=None, rate: float = 125.0):
+    def __init__(self, host: str = "127.0.0.1", log_path=None, rate: float = 125.0, time_scale: float = 1.0):
         import tempfile
         from pathlib import Path
 
-        self.host, self.rate = host, rate
+        self.host, self.rate, self.time_scale = host, rate, time_scale
         self.log_path = Path(log_path) if log_path else Path(tempfile.mkstemp(prefix="sim_ur_", suffix=".log")[1])
         self.process = None
 
@@ -542,7 +577,8 @@ class SimControllerProcess:
         import sys
 
         self.process = subprocess.Popen([sys.executable, "-m", "robot_bridge.sim_controller", "--host", self.host,
-                                         "--log", str(self.log_path), "--rate", str(self.rate)],
+                                         "--log", str(self.log_path), "--rate", str(self.rate),
+                                         "--time-scale", str(self.time_scale)],
                                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         t0 = time.monotonic()
         while time.monotonic() - t0 < timeout:
@@ -556,6 +592,14 @@ class SimControllerProcess:
                 time.sleep(0.1)
         self.kill()
         raise RuntimeError(f"simulated UR controller did not come up on {self.host} within {timeout:.0f} s")
+
+    def command(self, text: str, timeout: float = 5.0) -> str:
+        """One dashboard command (e.g. the ``sim ...`` ones) and its answer line."""
+        with socket.create_connection((self.host, DASHBOARD_PORT), timeout=timeout) as conn:
+            reader = conn.makefile("r")
+            reader.readline()  # welcome
+            conn.sendall((text + "\n").encode())
+            return reader.readline().strip()
 
     def log_lines(self) -> list[str]:
         return self.log_path.read_text().splitlines() if self.log_path.is_file() else []
@@ -594,10 +638,12 @@ def main(argv=None) -> int:
     parser.add_argument("--host", default="127.0.0.1", help="loopback address to listen on (any 127.x.y.z)")
     parser.add_argument("--log", help="append every command that reaches the cell to this file")
     parser.add_argument("--rate", type=float, default=125.0, help="control rate, Hz")
+    parser.add_argument("--time-scale", type=float, default=1.0,
+                        help="simulated seconds per second (e.g. 4: motions take a quarter of their time)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s",
                         handlers=[logging.FileHandler(args.log)] if args.log else None)
-    controller = SimController(args.host, rate=args.rate).start()
+    controller = SimController(args.host, rate=args.rate, time_scale=args.time_scale).start()
     print(f"simulated UR controller on {args.host} (dashboard {DASHBOARD_PORT}, RTDE {RTDE_PORT}, "
           f"script {', '.join(map(str, SCRIPT_PORTS))})", flush=True)
     stop = threading.Event()

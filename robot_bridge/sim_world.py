@@ -3,7 +3,10 @@ a table top and objects, and the motions a UR controller executes (moveJ, moveL,
 
 The arm follows its trajectories exactly (joint states set each tick: a UR tracks its interpolated path to
 well under a millimetre), the fingers are position-controlled with a force limit so they stop on what they
-hold, and everything else is rigid-body physics. Trajectories are trapezoidal velocity profiles: moveJ in
+touch, and everything else is rigid-body physics. Holding: once the closed fingers both touch the same
+object, it is fixed to the gripper body where it is (a PyBullet constraint) until the gripper opens;
+friction between fingers and an arm that is moved kinematically lets objects slip in PyBullet, which a
+real gripper's squeeze does not. Trajectories are trapezoidal velocity profiles: moveJ in
 joint space (all joints start and stop together, the largest move at the given speed and acceleration),
 moveL along the straight TCP line with the orientation SLERPed in step (the longer of translation at
 ``speed`` m/s and rotation at ``speed`` rad/s sets the time), each point solved by IK nearest the last
@@ -151,7 +154,8 @@ class RobotSim:
         self.fingers = [names.index("finger_left_joint"), names.index("finger_right_joint")]
         # links whose contact with anything is a collision: upper arm to wrist 3 and the gripper body (the
         # shoulder, link 0, sits on the mounting surface)
-        self.rigid_links = set(range(1, 6)) | {names.index("gripper_mount")}
+        self.gripper_link = names.index("gripper_mount")
+        self.rigid_links = set(range(1, 6)) | {self.gripper_link}
         self.collision: str | None = None  # what the arm hit, once it has
         for link in self.fingers:
             pb.changeDynamics(self.robot, link, lateralFriction=1.5, physicsClientId=self.client)
@@ -161,8 +165,71 @@ class RobotSim:
         self.qd = np.zeros(6)
         self.motion: Motion | None = None
         self.gripper_closed = False
+        self.objects: dict[str, tuple[int, np.ndarray]] = {}  # name -> (body, T_obj_com)
+        self.held: tuple[int, int] | None = None  # (object body, constraint) while the gripper holds one
+        self.basket_box: tuple[np.ndarray, np.ndarray] | None = None  # (floor centre, size)
         self._set_joints(self.q, self.qd)
         self._time_debt = 0.0
+
+    def add_object(self, name: str, urdf_path: str, T_base_obj: np.ndarray) -> None:
+        """Load an object URDF with its object frame at T_base_obj (PyBullet keeps bodies at their centre of
+        mass; the URDF's inertial origin is remembered to report object-frame poses)."""
+        if name in self.objects:
+            self.remove_object(name)
+        T = self.T_world_base @ T_base_obj
+        body = pb.loadURDF(str(urdf_path), T[:3, 3].tolist(), Rotation.from_matrix(T[:3, :3]).as_quat().tolist(),
+                           physicsClientId=self.client)
+        info = pb.getDynamicsInfo(body, -1, physicsClientId=self.client)
+        T_obj_com = np.eye(4)
+        T_obj_com[:3, :3] = Rotation.from_quat(info[4]).as_matrix()
+        T_obj_com[:3, 3] = info[3]
+        self.objects[name] = (body, T_obj_com)
+
+    def object_pose(self, name: str) -> np.ndarray:
+        """T_base_obj [4, 4] of a loaded object."""
+        body, T_obj_com = self.objects[name]
+        position, quat = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        T_world_com = np.eye(4)
+        T_world_com[:3, :3] = Rotation.from_quat(quat).as_matrix()
+        T_world_com[:3, 3] = position
+        return np.linalg.inv(self.T_world_base) @ T_world_com @ np.linalg.inv(T_obj_com)
+
+    def remove_object(self, name: str) -> None:
+        body = self.objects.pop(name)[0]
+        if self.held is not None and self.held[0] == body:
+            pb.removeConstraint(self.held[1], physicsClientId=self.client)
+            self.held = None
+        pb.removeBody(body, physicsClientId=self.client)
+
+    def add_basket(self, centre, size=(0.24, 0.24, 0.08), wall: float = 0.006) -> None:
+        """An open box standing on the table: floor centre ``centre`` [3] (base frame), outer ``size`` (m)."""
+        sx, sy, h = size
+        parts = [((sx / 2, sy / 2, wall / 2), (0, 0, wall / 2)),
+                 ((wall / 2, sy / 2, h / 2), (sx / 2 - wall / 2, 0, h / 2)),
+                 ((wall / 2, sy / 2, h / 2), (-sx / 2 + wall / 2, 0, h / 2)),
+                 ((sx / 2, wall / 2, h / 2), (0, sy / 2 - wall / 2, h / 2)),
+                 ((sx / 2, wall / 2, h / 2), (0, -sy / 2 + wall / 2, h / 2))]
+        shapes = [pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
+                  for half, _ in parts]
+        T = self.T_world_base.copy()
+        T[:3, 3] = (self.T_world_base @ np.r_[centre, 1.0])[:3]
+        self.basket = pb.createMultiBody(0, -1, basePosition=T[:3, 3].tolist(),
+                                         linkMasses=[0] * 5, linkCollisionShapeIndices=shapes,
+                                         linkVisualShapeIndices=[-1] * 5,
+                                         linkPositions=[list(o) for _, o in parts],
+                                         linkOrientations=[[0, 0, 0, 1]] * 5, linkInertialFramePositions=[[0, 0, 0]] * 5,
+                                         linkInertialFrameOrientations=[[0, 0, 0, 1]] * 5, linkParentIndices=[0] * 5,
+                                         linkJointTypes=[pb.JOINT_FIXED] * 5, linkJointAxis=[[0, 0, 1]] * 5,
+                                         physicsClientId=self.client)
+        self.basket_box = (np.asarray(centre, float), np.asarray(size, float))
+
+    def in_basket(self, name: str) -> bool:
+        """Whether the object's origin lies inside the basket's walls, below their top."""
+        if self.basket_box is None:
+            return False
+        (cx, cy, cz), (sx, sy, h) = self.basket_box
+        x, y, z = self.object_pose(name)[:3, 3]
+        return abs(x - cx) < sx / 2 and abs(y - cy) < sy / 2 and cz < z < cz + h + 0.05
 
     def close(self) -> None:
         if self.own_client and self.client is not None:
@@ -193,6 +260,28 @@ class RobotSim:
 
     def set_gripper(self, closed: bool) -> None:
         self.gripper_closed = bool(closed)
+        if not closed and self.held is not None:
+            pb.removeConstraint(self.held[1], physicsClientId=self.client)
+            self.held = None
+
+    def _hold_if_gripped(self) -> None:
+        """Fix an object touched by both closed fingers to the gripper body."""
+        if not self.gripper_closed or self.held is not None:
+            return
+        touching = [{c[2] for c in pb.getContactPoints(bodyA=self.robot, linkIndexA=f, physicsClientId=self.client)
+                     if c[2] != self.robot} for f in self.fingers]
+        common = touching[0] & touching[1] & {body for body, _ in self.objects.values()}
+        if not common:
+            return
+        body = min(common)
+        state = pb.getLinkState(self.robot, self.gripper_link, physicsClientId=self.client)
+        pos, quat = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        inv_pos, inv_quat = pb.invertTransform(state[4], state[5])
+        rel_pos, rel_quat = pb.multiplyTransforms(inv_pos, inv_quat, pos, quat)
+        constraint = pb.createConstraint(self.robot, self.gripper_link, body, -1, pb.JOINT_FIXED, [0, 0, 0],
+                                         rel_pos, [0, 0, 0], rel_quat, physicsClientId=self.client)
+        pb.changeConstraint(constraint, maxForce=200, physicsClientId=self.client)
+        self.held = (body, constraint)
 
     def gripper_width(self) -> float:
         """Distance between the fingers, m."""
@@ -219,6 +308,7 @@ class RobotSim:
             pb.stepSimulation(physicsClientId=self.client)
             self._time_debt -= self.time_step
         self._set_joints(self.q, self.qd)
+        self._hold_if_gripped()
         for contact in pb.getContactPoints(bodyA=self.robot, physicsClientId=self.client):
             other, link, depth = contact[2], contact[3], -contact[8]
             if other == self.robot or depth < 0.001:

@@ -20,9 +20,9 @@ LINK_RADIUS = 0.045  # m
 MAX_JOINT_SPEED = 3.15  # rad/s (UR5: 180 deg/s)
 MAX_JOINT_TORQUE = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0)  # N m
 # Parallel-jaw gripper on the flange (flange frame: z along the tool): a body, two fingers sliding along y.
-GRIPPER_BODY = (0.06, 0.13, 0.07)  # m, x y z
-FINGER = (0.02, 0.012, 0.06)  # m, x y z
-GRIPPER_STROKE = 0.085  # m, widest opening between the fingers (as a Robotiq 2F-85)
+GRIPPER_BODY = (0.06, 0.18, 0.07)  # m, x y z
+FINGER = (0.025, 0.012, 0.075)  # m, x y z
+GRIPPER_STROKE = 0.14  # m, widest opening between the fingers (as a Robotiq 2F-140: cup noodles are 9.4 cm wide)
 GRIPPER_FORCE = 60.0  # N per finger
 TCP_Z = GRIPPER_BODY[2] + FINGER[2] - 0.015  # m: the TCP sits between the fingertips
 
