@@ -307,6 +307,12 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_sim_robot(args) -> int:
+    from robot_bridge.sim_controller import serve
+
+    return serve(args.host, args.log, args.rate, args.time_scale, args.basket)
+
+
 def _add_camera_args(p):
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
@@ -420,6 +426,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-images", type=int, help="per scene")
     p.add_argument("--out", help="report folder (default: beside the model)")
     p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("sim-robot", help="run the simulated UR5 controller that ur-rtde clients drive (Ctrl-C stops)")
+    p.add_argument("--host", default="127.0.0.1", help="loopback address to listen on (any 127.x.y.z)")
+    p.add_argument("--log", help="write every command that reaches the cell to this file")
+    p.add_argument("--rate", type=float, default=125.0, help="control rate, Hz")
+    p.add_argument("--time-scale", type=float, default=1.0,
+                   help="simulated seconds per second (e.g. 4: motions take a quarter of their time)")
+    p.add_argument("--basket", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="put a basket with its floor centre here (base frame, m)")
+    p.set_defaults(func=cmd_sim_robot)
 
     assets = sub.add_parser("assets", help="asset library: list, show, import")
     assets.add_argument("--library", help="library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")

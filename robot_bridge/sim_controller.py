@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pegasus_gen.errors import PegasusError
 from robot_bridge import rtde_protocol as rp
 from robot_bridge.kinematics import fk, matrix_to_pose, nearest_ik, pose_to_matrix
 from robot_bridge.sim_world import MotionError, RobotSim
@@ -92,7 +93,8 @@ class SimController:
                 server.bind((self.host, port))
             except OSError as exc:
                 self.stop()
-                raise OSError(f"simulated UR controller: cannot listen on {self.host}:{port} ({exc})") from exc
+                raise PegasusError(f"simulated UR controller: cannot listen on {self.host}:{port} ({exc.strerror}; "
+                                   f"another controller there? any other 127.x.y.z address will do)") from exc
             server.listen(8)
             self._sockets.append(server)
             self._spawn(self._accept_loop, server, handler)
@@ -576,7 +578,7 @@ class SimControllerProcess:
         import subprocess
         import sys
 
-        self.process = subprocess.Popen([sys.executable, "-m", "robot_bridge.sim_controller", "--host", self.host,
+        self.process = subprocess.Popen([sys.executable, "-m", "pegasus_gen.cli", "sim-robot", "--host", self.host,
                                          "--log", str(self.log_path), "--rate", str(self.rate),
                                          "--time-scale", str(self.time_scale)],
                                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -629,23 +631,19 @@ class SimControllerProcess:
         self.stop()
 
 
-def main(argv=None) -> int:
-    """``python -m robot_bridge.sim_controller [--host H] [--log FILE]``: serve until interrupted."""
-    import argparse
+
+def serve(host: str = "127.0.0.1", log_path=None, rate: float = 125.0, time_scale: float = 1.0,
+          basket=None) -> int:
+    """Run a controller until SIGINT/SIGTERM (``pegasus sim-robot``)."""
     import signal
 
-    parser = argparse.ArgumentParser(description="simulated UR controller (PyBullet UR5) for ur-rtde")
-    parser.add_argument("--host", default="127.0.0.1", help="loopback address to listen on (any 127.x.y.z)")
-    parser.add_argument("--log", help="append every command that reaches the cell to this file")
-    parser.add_argument("--rate", type=float, default=125.0, help="control rate, Hz")
-    parser.add_argument("--time-scale", type=float, default=1.0,
-                        help="simulated seconds per second (e.g. 4: motions take a quarter of their time)")
-    args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s",
-                        handlers=[logging.FileHandler(args.log)] if args.log else None)
-    controller = SimController(args.host, rate=args.rate, time_scale=args.time_scale).start()
-    print(f"simulated UR controller on {args.host} (dashboard {DASHBOARD_PORT}, RTDE {RTDE_PORT}, "
-          f"script {', '.join(map(str, SCRIPT_PORTS))})", flush=True)
+                        handlers=[logging.FileHandler(log_path)] if log_path else None, force=True)
+    controller = SimController(host, rate=rate, time_scale=time_scale).start()
+    if basket is not None:
+        controller.sim.add_basket(basket)
+    print(f"simulated UR controller on {host} (dashboard {DASHBOARD_PORT}, RTDE {RTDE_PORT}, "
+          f"script {', '.join(map(str, SCRIPT_PORTS))}); Ctrl-C to stop", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -653,6 +651,3 @@ def main(argv=None) -> int:
     controller.stop()
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

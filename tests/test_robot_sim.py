@@ -147,3 +147,12 @@ def test_a_collision_is_a_protective_stop_and_the_bridge_reports_it(controller):
         with pytest.raises(RobotError, match="protective stop"):
             robot.move_l(down, speed=0.2)
         assert robot.protective_stopped() and robot.tcp_pose()[2, 3] > 0.0
+
+
+def test_sim_robot_command_refuses_an_address_in_use(controller):
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "pegasus_gen.cli", "sim-robot", "--host", controller.host],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "cannot listen on" in result.stderr and "Traceback" not in result.stderr
