@@ -194,6 +194,7 @@ class UR5:
                 self._fail(name, stop, "protective stop")
             status = self.control.getAsyncOperationProgressEx()
             if status.operationId() != before and not status.isAsyncOperationRunning():
+                self._fresh_state()
                 return
             if not self.control.isProgramRunning():
                 time.sleep(0.1)  # the state streams of control and receive arrive apart: let both catch up
@@ -201,6 +202,16 @@ class UR5:
                            else "the control program on the controller stopped")
             if now - t0 > c.move_timeout_s:
                 self._fail(name, stop, f"not finished after {c.move_timeout_s:.0f} s")
+
+    def _fresh_state(self, packets: int = 2, timeout: float = 0.5) -> None:
+        """Wait for ``packets`` new states on the receive stream: it arrives apart from the control stream
+        that reported the end of a move, and may still show the last instants of it."""
+        stamp, seen, t0 = self.receive.getTimestamp(), 0, time.monotonic()
+        while seen < packets and time.monotonic() - t0 < timeout:
+            time.sleep(0.002)
+            now = self.receive.getTimestamp()
+            if now != stamp:
+                stamp, seen = now, seen + 1
 
     def _fail(self, name: str, stop, why: str):
         try:

@@ -105,4 +105,5 @@ def test_twenty_cup_picks_with_the_real_client_land_in_the_basket(cup_urdf):
                 time.sleep(0.1)
                 landed += sim.command("sim in_basket cup") == "true" and bool(result.held)
                 sim.command("sim remove cup")
+    print(f"picks in the basket: {landed} of 20")
     assert landed >= 19, landed

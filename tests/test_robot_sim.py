@@ -89,14 +89,19 @@ def test_ur_rtde_client_reads_state_moves_and_sets_io(controller):
 
 def test_bridge_reconnects_after_the_controller_restarts():
     host = next(_hosts)
+    robot = UR5(BridgeConfig(host=host, stale_after=0.5))
     with SimControllerProcess(host):
-        with UR5(BridgeConfig(host=host)) as robot:
-            robot.move_j(HOME_Q + [0.1, 0, 0, 0, 0, 0])
-    with SimControllerProcess(host):
-        with UR5(BridgeConfig(host=host)) as robot:  # a fresh controller, a fresh connection
-            np.testing.assert_allclose(robot.joint_positions(), HOME_Q, atol=1e-9)
-            robot.move_j(HOME_Q + [0.1, 0, 0, 0, 0, 0])
-            np.testing.assert_allclose(robot.joint_positions(), HOME_Q + [0.1, 0, 0, 0, 0, 0], atol=1e-4)
+        robot.connect()
+        robot.move_j(HOME_Q + [0.1, 0, 0, 0, 0, 0])
+    with pytest.raises(RobotConnectionError):  # the controller is gone
+        robot.move_j(HOME_Q)
+    with SimControllerProcess(host):  # restarted: the same bridge connects again
+        robot.disconnect()
+        robot.connect()
+        np.testing.assert_allclose(robot.joint_positions(), HOME_Q, atol=1e-9)
+        robot.move_j(HOME_Q + [0.1, 0, 0, 0, 0, 0])
+        np.testing.assert_allclose(robot.joint_positions(), HOME_Q + [0.1, 0, 0, 0, 0, 0], atol=1e-4)
+        robot.disconnect()
 
 
 def test_unsafe_commands_are_refused_and_nothing_is_sent(controller):
