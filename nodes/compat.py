@@ -1,0 +1,465 @@
+"""A stand-in for the subset of rclpy the nodes use, for machines without ROS 2 (``nodes.ros`` picks the real
+rclpy when it imports). Same names and call shapes as rclpy: ``init/shutdown/ok``, ``Node`` (publishers,
+subscriptions, timers, services and clients, declared parameters, logger, clock), QoS profiles,
+``SingleThreadedExecutor`` / ``MultiThreadedExecutor``, ``spin``, ``spin_once``,
+``spin_until_future_complete``, ``Future``.
+
+Transport: in-process. A context holds the graph; ``publish`` puts the message on each matching
+subscription's queue (``depth`` newest kept, as KEEP_LAST), and an executor runs the callbacks of the nodes
+added to it: messages, due timers, service requests, client responses. Messages are passed by reference,
+as rclpy's intra-process mode does, so subscribers must not change them. Nodes meant to talk across
+processes need real ROS 2 (rclpy); launch files run every node in one process.
+"""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from enum import Enum
+
+
+class ParameterNotDeclaredException(Exception):
+    pass
+
+
+class ParameterAlreadyDeclaredException(Exception):
+    pass
+
+
+# -- QoS --------------------------------------------------------------------------------------------------
+class HistoryPolicy(Enum):
+    KEEP_LAST = 1
+    KEEP_ALL = 2
+
+
+class ReliabilityPolicy(Enum):
+    RELIABLE = 1
+    BEST_EFFORT = 2
+
+
+class DurabilityPolicy(Enum):
+    VOLATILE = 2
+    TRANSIENT_LOCAL = 1
+
+
+@dataclass
+class QoSProfile:
+    depth: int = 10
+    history: HistoryPolicy = HistoryPolicy.KEEP_LAST
+    reliability: ReliabilityPolicy = ReliabilityPolicy.RELIABLE
+    durability: DurabilityPolicy = DurabilityPolicy.VOLATILE
+
+
+qos_profile_sensor_data = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+qos_profile_system_default = QoSProfile()
+
+
+def _qos(qos) -> QoSProfile:
+    return QoSProfile(depth=qos) if isinstance(qos, int) else qos
+
+
+# -- context ----------------------------------------------------------------------------------------------
+class Context:
+    """The graph of one init(): topics -> subscriptions, services by name, latched messages."""
+
+    def __init__(self):
+        self.lock = threading.RLock()
+        self.subscriptions: dict[str, list[Subscription]] = collections.defaultdict(list)
+        self.services: dict[str, Service] = {}
+        self.latched: dict[str, object] = {}  # last message of TRANSIENT_LOCAL publishers
+        self.wake = threading.Condition(self.lock)
+        self.running = False
+
+    def notify(self) -> None:
+        with self.wake:
+            self.wake.notify_all()
+
+
+_default = Context()
+
+
+def init(args=None, context: Context | None = None) -> None:
+    (context or _default).running = True
+
+
+def ok(context: Context | None = None) -> bool:
+    return (context or _default).running
+
+
+def shutdown(context: Context | None = None) -> None:
+    ctx = context or _default
+    ctx.running = False
+    ctx.notify()
+    with ctx.lock:
+        ctx.subscriptions.clear()
+        ctx.services.clear()
+        ctx.latched.clear()
+
+
+def create_node(name: str, **kwargs) -> "Node":
+    return Node(name, **kwargs)
+
+
+# -- futures ----------------------------------------------------------------------------------------------
+class Future:
+    """rclpy.task.Future: result(), done(), set_result(), add_done_callback()."""
+
+    def __init__(self):
+        self._done, self._result, self._callbacks = threading.Event(), None, []
+
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def result(self):
+        return self._result
+
+    def set_result(self, result) -> None:
+        self._result = result
+        self._done.set()
+        for cb in self._callbacks:
+            cb(self)
+
+    def add_done_callback(self, callback) -> None:
+        if self.done():
+            callback(self)
+        else:
+            self._callbacks.append(callback)
+
+
+# -- entities ---------------------------------------------------------------------------------------------
+class Publisher:
+    def __init__(self, node: "Node", msg_type, topic: str, qos: QoSProfile):
+        self.node, self.msg_type, self.topic, self.qos = node, msg_type, topic, qos
+
+    def publish(self, msg) -> None:
+        if not isinstance(msg, self.msg_type):
+            raise TypeError(f"{self.topic}: publish() expects {self.msg_type.__name__}, got {type(msg).__name__}")
+        ctx = self.node.context
+        with ctx.lock:
+            if self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+                ctx.latched[self.topic] = msg
+            for sub in ctx.subscriptions.get(self.topic, []):
+                sub.queue.append(msg)
+        ctx.notify()
+
+    def get_subscription_count(self) -> int:
+        return len(self.node.context.subscriptions.get(self.topic, []))
+
+    def destroy(self) -> None:
+        self.node.publishers.remove(self)
+
+
+class Subscription:
+    def __init__(self, node: "Node", msg_type, topic: str, callback, qos: QoSProfile):
+        self.node, self.msg_type, self.topic, self.callback = node, msg_type, topic, callback
+        depth = None if qos.history == HistoryPolicy.KEEP_ALL else max(qos.depth, 1)
+        self.queue: collections.deque = collections.deque(maxlen=depth)
+        latched = node.context.latched.get(topic)
+        if latched is not None:
+            self.queue.append(latched)
+
+    def destroy(self) -> None:
+        with self.node.context.lock:
+            self.node.context.subscriptions[self.topic].remove(self)
+        self.node.subscriptions.remove(self)
+
+
+class Timer:
+    def __init__(self, node: "Node", period: float, callback):
+        if period <= 0:
+            raise ValueError(f"timer period must be positive, got {period}")
+        self.node, self.period, self.callback = node, period, callback
+        self.next_call = time.monotonic() + period
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+    def reset(self) -> None:
+        self.cancelled = False
+        self.next_call = time.monotonic() + self.period
+
+    def is_ready(self) -> bool:
+        return not self.cancelled and time.monotonic() >= self.next_call
+
+    def destroy(self) -> None:
+        self.cancel()
+        self.node.timers.remove(self)
+
+
+class Service:
+    def __init__(self, node: "Node", srv_type, name: str, callback):
+        self.node, self.srv_type, self.name, self.callback = node, srv_type, name, callback
+        self.requests: collections.deque = collections.deque()
+
+
+class Client:
+    def __init__(self, node: "Node", srv_type, name: str):
+        self.node, self.srv_type, self.name = node, srv_type, name
+        self.responses: collections.deque = collections.deque()  # (future, response) ready for callbacks
+
+    def service_is_ready(self) -> bool:
+        return self.name in self.node.context.services
+
+    def wait_for_service(self, timeout_sec: float | None = None) -> bool:
+        t0 = time.monotonic()
+        while not self.service_is_ready():
+            if timeout_sec is not None and time.monotonic() - t0 > timeout_sec:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def call_async(self, request) -> Future:
+        ctx = self.node.context
+        with ctx.lock:
+            service = ctx.services.get(self.name)
+            if service is None:
+                raise RuntimeError(f"service {self.name} is not available")
+            future = Future()
+            service.requests.append((request, future, self))
+        ctx.notify()
+        return future
+
+
+@dataclass
+class Parameter:
+    name: str
+    value: object = None
+
+    def get_parameter_value(self):
+        return self
+
+    @property
+    def string_value(self):
+        return str(self.value)
+
+    @property
+    def integer_value(self):
+        return int(self.value)
+
+    @property
+    def double_value(self):
+        return float(self.value)
+
+    @property
+    def bool_value(self):
+        return bool(self.value)
+
+
+class Clock:
+    def now(self) -> "Time":
+        return Time(nanoseconds=time.time_ns())
+
+
+@dataclass
+class Time:
+    nanoseconds: int = 0
+
+    def to_msg(self):
+        from nodes.msgs import TimeMsg
+
+        return TimeMsg(sec=self.nanoseconds // 1_000_000_000, nanosec=self.nanoseconds % 1_000_000_000)
+
+
+class Node:
+    """rclpy.node.Node. ``parameter_overrides``: [Parameter] applied to declarations (how launch files
+    pass parameters)."""
+
+    def __init__(self, node_name: str, *, context: Context | None = None, parameter_overrides=None,
+                 namespace: str = ""):
+        self.context = context or _default
+        self._name, self.namespace = node_name, namespace
+        self.publishers, self.subscriptions, self.timers = [], [], []
+        self.services, self.clients = [], []
+        self._parameters: dict[str, Parameter] = {}
+        self._overrides = {p.name: p.value for p in (parameter_overrides or [])}
+        self._logger = logging.getLogger(node_name)
+        self._clock = Clock()
+
+    def get_name(self) -> str:
+        return self._name
+
+    def get_logger(self) -> logging.Logger:
+        return self._logger
+
+    def get_clock(self) -> Clock:
+        return self._clock
+
+    def create_publisher(self, msg_type, topic: str, qos_profile) -> Publisher:
+        pub = Publisher(self, msg_type, topic, _qos(qos_profile))
+        self.publishers.append(pub)
+        return pub
+
+    def create_subscription(self, msg_type, topic: str, callback, qos_profile) -> Subscription:
+        sub = Subscription(self, msg_type, topic, callback, _qos(qos_profile))
+        with self.context.lock:
+            self.context.subscriptions[topic].append(sub)
+        self.subscriptions.append(sub)
+        return sub
+
+    def create_timer(self, timer_period_sec: float, callback) -> Timer:
+        timer = Timer(self, timer_period_sec, callback)
+        self.timers.append(timer)
+        return timer
+
+    def create_service(self, srv_type, srv_name: str, callback) -> Service:
+        with self.context.lock:
+            if srv_name in self.context.services:
+                raise RuntimeError(f"service {srv_name} already exists")
+            service = Service(self, srv_type, srv_name, callback)
+            self.context.services[srv_name] = service
+        self.services.append(service)
+        return service
+
+    def create_client(self, srv_type, srv_name: str) -> Client:
+        client = Client(self, srv_type, srv_name)
+        self.clients.append(client)
+        return client
+
+    def declare_parameter(self, name: str, value=None) -> Parameter:
+        if name in self._parameters:
+            raise ParameterAlreadyDeclaredException(name)
+        param = Parameter(name, self._overrides.get(name, value))
+        self._parameters[name] = param
+        return param
+
+    def get_parameter(self, name: str) -> Parameter:
+        if name not in self._parameters:
+            raise ParameterNotDeclaredException(name)
+        return self._parameters[name]
+
+    def has_parameter(self, name: str) -> bool:
+        return name in self._parameters
+
+    def destroy_node(self) -> None:
+        with self.context.lock:
+            for sub in self.subscriptions:
+                self.context.subscriptions[sub.topic].remove(sub)
+            for service in self.services:
+                self.context.services.pop(service.name, None)
+        self.publishers, self.subscriptions, self.timers = [], [], []
+
+    # work the executor can do now: [(callable, args)]
+    def _ready_work(self) -> list:
+        work = []
+        for sub in self.subscriptions:
+            if sub.queue:
+                work.append((sub.callback, (sub.queue.popleft(),)))
+        for timer in self.timers:
+            if timer.is_ready():
+                timer.next_call += timer.period
+                if timer.next_call < time.monotonic():  # fell behind: no burst of catch-up calls
+                    timer.next_call = time.monotonic() + timer.period
+                work.append((timer.callback, ()))
+        for service in self.services:
+            while service.requests:
+                request, future, client = service.requests.popleft()
+                work.append((_serve, (service, request, future, client)))
+        for client in self.clients:
+            while client.responses:
+                future, response = client.responses.popleft()
+                work.append((future.set_result, (response,)))
+        return work
+
+    def _next_deadline(self) -> float | None:
+        due = [t.next_call for t in self.timers if not t.cancelled]
+        return min(due) if due else None
+
+
+def _serve(service: Service, request, future: Future, client: Client) -> None:
+    response = service.callback(request, service.srv_type.Response())
+    with client.node.context.lock:
+        client.responses.append((future, response))
+    client.node.context.notify()
+
+
+# -- executors --------------------------------------------------------------------------------------------
+class SingleThreadedExecutor:
+    """Runs the callbacks of its nodes one at a time in the spinning thread."""
+
+    def __init__(self, context: Context | None = None):
+        self.context = context or _default
+        self.nodes: list[Node] = []
+
+    def add_node(self, node: Node) -> bool:
+        if node not in self.nodes:
+            self.nodes.append(node)
+        return True
+
+    def remove_node(self, node: Node) -> None:
+        self.nodes.remove(node)
+
+    def _collect(self) -> list:
+        with self.context.lock:
+            return [w for node in self.nodes for w in node._ready_work()]
+
+    def _wait(self, timeout: float | None) -> None:
+        deadlines = [d for d in (n._next_deadline() for n in self.nodes) if d is not None]
+        wait = max(0.0, min(deadlines) - time.monotonic()) if deadlines else None
+        if timeout is not None:
+            wait = timeout if wait is None else min(wait, timeout)
+        with self.context.wake:
+            self.context.wake.wait(0.1 if wait is None else min(wait, 0.1))
+
+    def _run(self, work: list) -> None:
+        for callback, args in work:
+            callback(*args)
+
+    def spin_once(self, timeout_sec: float | None = None) -> None:
+        work = self._collect()
+        if not work:
+            self._wait(timeout_sec)
+            work = self._collect()
+        self._run(work)
+
+    def spin(self) -> None:
+        while self.context.running:
+            self.spin_once(0.1)
+
+    def spin_until_future_complete(self, future: Future, timeout_sec: float | None = None) -> None:
+        t0 = time.monotonic()
+        while self.context.running and not future.done():
+            if timeout_sec is not None and time.monotonic() - t0 > timeout_sec:
+                return
+            self.spin_once(0.05)
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        return True
+
+
+class MultiThreadedExecutor(SingleThreadedExecutor):
+    """Runs the ready callbacks on a thread pool (``num_threads``) and waits for them each round."""
+
+    def __init__(self, num_threads: int | None = None, context: Context | None = None):
+        super().__init__(context)
+        self.pool = concurrent.futures.ThreadPoolExecutor(max_workers=num_threads or 4)
+
+    def _run(self, work: list) -> None:
+        for f in [self.pool.submit(callback, *args) for callback, args in work]:
+            f.result()
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        self.pool.shutdown(wait=True)
+        return True
+
+
+def spin_once(node: Node, *, executor=None, timeout_sec: float | None = None) -> None:
+    executor = executor or SingleThreadedExecutor(node.context)
+    executor.add_node(node)
+    executor.spin_once(timeout_sec)
+
+
+def spin(node: Node, executor=None) -> None:
+    executor = executor or SingleThreadedExecutor(node.context)
+    executor.add_node(node)
+    executor.spin()
+
+
+def spin_until_future_complete(node: Node, future: Future, executor=None, timeout_sec: float | None = None) -> None:
+    executor = executor or SingleThreadedExecutor(node.context)
+    executor.add_node(node)
+    executor.spin_until_future_complete(future, timeout_sec)

@@ -1,0 +1,36 @@
+"""The ROS 2 API the nodes are written against: the real rclpy and message packages when they import,
+otherwise the stand-in layer (``nodes.compat``, ``nodes.msgs``). Nodes import everything from here:
+
+    from nodes.ros import rclpy, Node, msgs, QoSProfile
+"""
+
+from __future__ import annotations
+
+try:  # pragma: no cover - exercised only where ROS 2 is installed
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile
+    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    import types
+
+    from geometry_msgs.msg import Pose, PoseStamped, TransformStamped
+    from sensor_msgs.msg import CameraInfo, Image
+    from std_msgs.msg import Header, String
+    from std_srvs.srv import Trigger
+    from vision_msgs.msg import Detection3D, Detection3DArray, ObjectHypothesisWithPose
+
+    msgs = types.SimpleNamespace(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped,
+                                 CameraInfo=CameraInfo, Image=Image, Header=Header, String=String, Trigger=Trigger,
+                                 Detection3D=Detection3D, Detection3DArray=Detection3DArray,
+                                 ObjectHypothesisWithPose=ObjectHypothesisWithPose)
+    REAL_ROS = True
+except ImportError:
+    from nodes import compat as rclpy
+    from nodes import msgs
+    from nodes.compat import MultiThreadedExecutor, Node, Parameter, QoSProfile, SingleThreadedExecutor
+
+    REAL_ROS = False
+
+__all__ = ["rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs",
+           "REAL_ROS"]

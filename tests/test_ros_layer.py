@@ -1,0 +1,97 @@
+"""The rclpy stand-in: the same node code publishes/subscribes, runs timers, serves and calls services,
+reads parameters from overrides, on single- and multi-threaded executors; images and poses convert."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from nodes.ros import REAL_ROS, MultiThreadedExecutor, Node, Parameter, SingleThreadedExecutor, msgs, rclpy
+
+pytestmark = pytest.mark.skipif(REAL_ROS, reason="these test the stand-in; with ROS 2 the real rclpy is used")
+
+
+class Talker(Node):
+    def __init__(self, **kw):
+        super().__init__("talker", **kw)
+        self.declare_parameter("greeting", "hello")
+        self.declare_parameter("period", 0.01)
+        self.pub = self.create_publisher(msgs.String, "chatter", 10)
+        self.count = 0
+        self.timer = self.create_timer(self.get_parameter("period").value, self.tick)
+        self.srv = self.create_service(msgs.Trigger, "reset", self.reset)
+
+    def tick(self):
+        self.count += 1
+        self.pub.publish(msgs.String(data=f"{self.get_parameter('greeting').value} {self.count}"))
+
+    def reset(self, request, response):
+        self.count = 0
+        response.success, response.message = True, "reset"
+        return response
+
+
+class Listener(Node):
+    def __init__(self):
+        super().__init__("listener")
+        self.heard = []
+        self.create_subscription(msgs.String, "chatter", lambda m: self.heard.append(m.data), 10)
+
+
+@pytest.mark.parametrize("executor_type", [SingleThreadedExecutor, MultiThreadedExecutor])
+def test_publisher_subscriber_timer_service_and_parameters(executor_type):
+    rclpy.init()
+    try:
+        talker = Talker(parameter_overrides=[Parameter("greeting", "hi")])
+        listener = Listener()
+        executor = executor_type()
+        executor.add_node(talker)
+        executor.add_node(listener)
+        for _ in range(200):
+            executor.spin_once(timeout_sec=0.05)
+            if len(listener.heard) >= 5:
+                break
+        assert listener.heard[:3] == ["hi 1", "hi 2", "hi 3"]
+        client = listener.create_client(msgs.Trigger, "reset")
+        assert client.wait_for_service(timeout_sec=1.0)
+        future = client.call_async(msgs.Trigger.Request())
+        executor.spin_until_future_complete(future, timeout_sec=2.0)
+        assert future.done() and future.result().success and talker.count == 0
+        with pytest.raises(Exception):
+            talker.get_parameter("undeclared")
+        executor.shutdown()
+    finally:
+        rclpy.shutdown()
+
+
+def test_keep_last_depth_drops_the_oldest_and_publish_checks_the_type():
+    rclpy.init()
+    try:
+        node = Node("n")
+        got = []
+        node.create_subscription(msgs.String, "t", lambda m: got.append(m.data), 2)
+        pub = node.create_publisher(msgs.String, "t", 10)
+        for k in range(5):
+            pub.publish(msgs.String(data=str(k)))
+        rclpy.spin_once(node, timeout_sec=0.1)
+        rclpy.spin_once(node, timeout_sec=0.1)
+        assert got == ["3", "4"]
+        with pytest.raises(TypeError):
+            pub.publish("not a message")
+    finally:
+        rclpy.shutdown()
+
+
+def test_image_and_pose_conversions_round_trip():
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)
+    msg = msgs.numpy_to_image(rgb, "rgb8")
+    assert (msg.height, msg.width, msg.step) == (4, 6, 18)
+    np.testing.assert_array_equal(msgs.image_to_numpy(msg), rgb)
+    depth = rng.random((4, 6)).astype(np.float32)
+    np.testing.assert_array_equal(msgs.image_to_numpy(msgs.numpy_to_image(depth, "32FC1")), depth)
+    with pytest.raises(ValueError):
+        msgs.numpy_to_image(rgb, "mono8")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=1).as_matrix()
+    T[:3, 3] = [0.1, -0.2, 0.7]
+    np.testing.assert_allclose(msgs.pose_to_matrix(msgs.matrix_to_pose(T)), T, atol=1e-12)
