@@ -313,6 +313,14 @@ def cmd_sim_robot(args) -> int:
     return serve(args.host, args.log, args.rate, args.time_scale, args.basket)
 
 
+def cmd_launch(args) -> int:
+    from nodes.launch import run
+
+    nodes = run(args.file, args.arguments)
+    print(f"launch: {len(nodes)} node(s) ran: {', '.join(n.get_name() for n in nodes)}")
+    return 0
+
+
 def _add_camera_args(p):
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
@@ -436,6 +444,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--basket", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="put a basket with its floor centre here (base frame, m)")
     p.set_defaults(func=cmd_sim_robot)
+
+    p = sub.add_parser("launch", help="run a ROS 2-style launch file without ROS: pegasus launch FILE [name:=value ...]")
+    p.add_argument("file", help="a *.launch.py file")
+    p.add_argument("arguments", nargs="*", metavar="name:=value")
+    p.set_defaults(func=cmd_launch)
 
     assets = sub.add_parser("assets", help="asset library: list, show, import")
     assets.add_argument("--library", help="library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")

@@ -1,0 +1,169 @@
+"""ROS 2 launch files without ROS 2: the subset of ``launch`` / ``launch_ros`` our launch files use, and the
+runner behind ``pegasus launch FILE [name:=value ...]``.
+
+A launch file (``launch/*.launch.py``) imports LaunchDescription, DeclareLaunchArgument,
+LaunchConfiguration and Node from the real packages when ROS 2 is installed (then ``ros2 launch`` runs
+it) and from here otherwise, and defines ``generate_launch_description()``. The runner resolves the
+declared arguments (defaults, ``name:=value`` overrides; an undeclared or invalid one is an error naming
+the declared ones), builds every Node action's node in this process from ``nodes.<executable>``'s
+``NODE_CLASS`` with its parameters (LaunchConfiguration substituted) as overrides, and spins them on one
+multi-threaded executor until a node calls ``request_shutdown`` or Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pegasus_gen.errors import PegasusError
+
+
+@dataclass
+class LaunchConfiguration:
+    """The value of a launch argument, substituted when the launch runs."""
+
+    variable_name: str
+
+
+@dataclass
+class DeclareLaunchArgument:
+    name: str
+    default_value: str | None = None
+    description: str = ""
+    choices: list[str] | None = None
+
+
+@dataclass
+class Node:
+    """launch_ros.actions.Node: ``executable`` names the module ``nodes.<executable>``."""
+
+    package: str = "pegasus"
+    executable: str = ""
+    name: str | None = None
+    parameters: list = field(default_factory=list)  # [dict]
+    output: str = "screen"
+    arguments: list = field(default_factory=list)
+
+
+class LaunchDescription:
+    def __init__(self, entities=None):
+        self.entities = list(entities or [])
+
+    def add_action(self, action) -> None:
+        self.entities.append(action)
+
+
+def parse_overrides(items: list[str]) -> dict[str, str]:
+    """``name:=value`` strings -> {name: value}; anything else is an error."""
+    out = {}
+    for item in items:
+        if ":=" not in item:
+            raise PegasusError(f"launch argument {item!r} is not of the form name:=value")
+        name, value = item.split(":=", 1)
+        out[name] = value
+    return out
+
+
+def load_description(path: str | Path) -> LaunchDescription:
+    path = Path(path)
+    if not path.is_file():
+        raise PegasusError(f"{path}: no such launch file")
+    spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    if not hasattr(module, "generate_launch_description"):
+        raise PegasusError(f"{path}: has no generate_launch_description()")
+    return module.generate_launch_description()
+
+
+def resolve_arguments(description: LaunchDescription, overrides: dict[str, str]) -> dict[str, str]:
+    """{argument: value} from the declarations and the overrides (clear errors for unknown, missing or
+    out-of-choice values)."""
+    declared = {e.name: e for e in description.entities if isinstance(e, DeclareLaunchArgument)}
+    unknown = sorted(set(overrides) - set(declared))
+    if unknown:
+        raise PegasusError(f"unknown launch argument(s) {', '.join(unknown)} (declared: {', '.join(sorted(declared))})")
+    values = {}
+    for name, decl in declared.items():
+        value = overrides.get(name, decl.default_value)
+        if value is None:
+            raise PegasusError(f"launch argument {name!r} has no default: give {name}:=VALUE ({decl.description})")
+        if decl.choices is not None and value not in decl.choices:
+            raise PegasusError(f"launch argument {name}:={value} is not one of {', '.join(decl.choices)}")
+        values[name] = value
+    return values
+
+
+def _substitute(value, arguments: dict[str, str]):
+    if isinstance(value, LaunchConfiguration):
+        return _typed(arguments[value.variable_name])
+    if isinstance(value, list):
+        return [_substitute(v, arguments) for v in value]
+    if hasattr(value, "variable_name"):  # a real launch LaunchConfiguration in a ROS 2 install
+        return _typed(arguments[value.variable_name])
+    return value
+
+
+def _typed(text: str):
+    """Launch arguments are strings; parameters get int, float or bool when the text is one."""
+    lowered = text.strip().lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def build_nodes(description: LaunchDescription, arguments: dict[str, str], context=None) -> list:
+    """The node objects of the description's Node actions, constructed with their parameters."""
+    from nodes.compat import Parameter
+
+    built = []
+    for entity in description.entities:
+        if not isinstance(entity, Node) and type(entity).__name__ != "Node":
+            continue
+        try:
+            module = importlib.import_module(f"nodes.{entity.executable}")
+        except ModuleNotFoundError as exc:
+            raise PegasusError(f"launch: no node executable {entity.executable!r} (nodes.{entity.executable})") from exc
+        params = {}
+        for group in entity.parameters:
+            params.update({k: _substitute(v, arguments) for k, v in group.items()})
+        overrides = [Parameter(k, v) for k, v in params.items()]
+        kwargs = {"parameter_overrides": overrides}
+        if context is not None:
+            kwargs["context"] = context
+        built.append(module.NODE_CLASS(**kwargs))
+    return built
+
+
+def run(path: str | Path, overrides: list[str], timeout: float | None = None) -> list:
+    """Run a launch file (see the module docstring); returns the nodes after they stopped."""
+    import time
+
+    from nodes import compat
+
+    description = load_description(path)
+    arguments = resolve_arguments(description, parse_overrides(overrides))
+    compat.init()
+    nodes = build_nodes(description, arguments)
+    executor = compat.MultiThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    t0 = time.monotonic()
+    try:
+        while compat.ok() and not any(getattr(n, "shutdown_requested", False) for n in nodes):
+            if timeout is not None and time.monotonic() - t0 > timeout:
+                break
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        compat.shutdown()
+    return nodes
