@@ -7,7 +7,8 @@ a cup: z, continuous symmetry).
 
 Rule: the tool always points straight down. The jaws close horizontally, across the object: for an object
 standing on its symmetry axis, in whatever direction is nearest the tool's current yaw (symmetry makes all
-equal); otherwise across the narrower horizontal extent of the box, turned by pi where that is nearer.
+equal); for one lying or leaning, square to the axis (across its diameter); without a symmetry axis,
+across the narrower horizontal extent of the box; each turned by pi where that is nearer.
 The TCP goes to ``grasp_height`` of the object's vertical extent above its lowest point (above the centre
 of mass for upright cups, below their wide rim), never lower than ``finger_clearance`` above the table.
 Waypoints: pre-grasp (``approach`` above the grasp), grasp, lift (``lift`` above the grasp), pre-place and
@@ -78,10 +79,15 @@ def plan_grasp(T_cam_obj: np.ndarray, T_base_cam: np.ndarray, bbox_min, bbox_siz
     low, high = corners[:, 2].min(), corners[:, 2].max()
     centre = (cuboid_points(bbox_min, bbox_size)[8] @ T[:3, :3].T + T[:3, 3])
     current_yaw = float(np.arctan2(current_tcp[1, 1], current_tcp[0, 1]))
-    if axis is not None and abs((T[:3, :3] @ np.asarray(axis, float))[2]) > np.cos(np.radians(20)):
+    axis_base = None if axis is None else T[:3, :3] @ np.asarray(axis, float)
+    if axis_base is not None and abs(axis_base[2]) > np.cos(np.radians(20)):
         yaw = current_yaw  # standing on its symmetry axis: every direction across it is alike
         radial = np.linalg.norm(corners[:, :2] - centre[:2], axis=1).max() / np.sqrt(2)
         width = 2 * radial
+    elif axis_base is not None:  # lying or leaning: close horizontally, square to the axis
+        across = np.array([-axis_base[1], axis_base[0]]) / np.linalg.norm(axis_base[:2])
+        yaw = _nearest_yaw([np.arctan2(across[1], across[0]) + k * np.pi for k in (0, 1)], current_yaw)
+        width = float(np.delete(np.asarray(bbox_size, float), int(np.argmax(np.abs(axis)))).max())  # diameter
     else:
         # across the narrower horizontal extent of the box
         extents = []

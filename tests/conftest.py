@@ -39,3 +39,14 @@ def dope_dataset(tmp_path_factory):
                                        "camera.width=320", "camera.height=240", "device=cpu",
                                        "environments=[wooden_table]", "objects=[{asset: 1, count: [1, 1]}]",
                                        "trajectory.distance=[0.28, 0.32]"]))
+
+
+@pytest.fixture(scope="session")
+def overfit_dope(dope_dataset, tmp_path_factory):
+    """The light DOPE model trained 500 steps (160 px crops, no augmentation) on ``dope_dataset``: its run
+    folder (last.pt, loss.csv, ...)."""
+    from dope_training.train import TrainConfig, train
+
+    return train(TrainConfig(data=[str(dope_dataset)], object="noodle_cup_red",
+                             out=str(tmp_path_factory.mktemp("overfit") / "run"), size=160, batch_size=4, epochs=500,
+                             lr=1e-3, augment=False, loader_workers=0, device="cpu", checkpoint_every=500))

@@ -32,10 +32,8 @@ def small(dope_dataset, out, **kw):
     return TrainConfig(**{**args, **kw})
 
 
-def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_dataset, tmp_path):
-    run = train(TrainConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(tmp_path / "run"), size=160,
-                            batch_size=4, epochs=500, lr=1e-3, augment=False, loader_workers=0, device="cpu",
-                            checkpoint_every=500))
+def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_dataset, overfit_dope, tmp_path):
+    run = overfit_dope  # the light model trained 500 steps on the tiny dataset (conftest)
     loss = [value for _, value, _ in losses(run)]
     assert len(loss) == 500 and loss[0] / np.mean(loss[-10:]) >= 5, (loss[0], loss[-10:])
     assert (run / "loss.png").is_file() and (run / "beliefs" / "epoch_0500.png").is_file()

@@ -1,0 +1,75 @@
+"""inference_node: DOPE poses from camera images.
+
+Subscribes ``image`` (rgb8) and ``camera_info`` (K); publishes for each image ``object_pose``
+(geometry_msgs/PoseStamped of the best-scoring instance, camera frame, metres), ``detections``
+(vision_msgs/Detection3DArray: every instance with its score and model box) and ``overlay`` (the image with
+the posed boxes). Parameters: ``model`` (ONNX export or checkpoint), ``device`` (cpu | cuda | auto),
+``min_score``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dope_training.infer import DopeModel
+from nodes.ros import Node, msgs
+from pegasus_gen.view import draw_instance
+
+
+class InferenceNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("inference_node", **kwargs)
+        model = self.declare_parameter("model", "").value
+        device = self.declare_parameter("device", "cpu").value
+        self.min_score = float(self.declare_parameter("min_score", 0.1).value)
+        self.model = DopeModel(model, device=device)
+        self.K = None
+        self.pose_pub = self.create_publisher(msgs.PoseStamped, "object_pose", 5)
+        self.detections_pub = self.create_publisher(msgs.Detection3DArray, "detections", 5)
+        self.overlay_pub = self.create_publisher(msgs.Image, "overlay", 2)
+        self.create_subscription(msgs.CameraInfo, "camera_info", self.on_info, 5)
+        self.create_subscription(msgs.Image, "image", self.on_image, 2)
+        self.images = 0
+
+    def on_info(self, msg) -> None:
+        self.K = np.array(msg.k, dtype=np.float64).reshape(3, 3)
+
+    def on_image(self, msg) -> None:
+        if self.K is None:
+            self.get_logger().warning("inference_node: image before camera_info, skipped")
+            return
+        image = msgs.image_to_numpy(msg)
+        poses = self.model.estimate(image, self.K, min_score=self.min_score)
+        self.images += 1
+        obj = self.model.object
+        array = msgs.Detection3DArray(header=msg.header)
+        overlay = image.copy()
+        for pose in poses:
+            hypothesis = msgs.ObjectHypothesisWithPose()
+            hypothesis.hypothesis.class_id, hypothesis.hypothesis.score = obj.name, pose.score
+            hypothesis.pose.pose = msgs.matrix_to_pose(pose.T, msgs.Pose)
+            detection = msgs.Detection3D(header=msg.header, results=[hypothesis], id=obj.name)
+            detection.bbox.center = msgs.matrix_to_pose(pose.T, msgs.Pose)
+            detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = (float(v) for v in obj.bbox_size)
+            array.detections.append(detection)
+            draw_instance(overlay, self.K, pose.T, np.array(obj.bbox_min), np.array(obj.bbox_size), None, None,
+                          (255, 60, 200), f"{obj.name} {pose.score:.2f}")
+        self.detections_pub.publish(array)
+        self.overlay_pub.publish(msgs.numpy_to_image(overlay, "rgb8", msgs.Image, msg.header))
+        if poses:
+            self.pose_pub.publish(msgs.PoseStamped(header=msg.header, pose=msgs.matrix_to_pose(poses[0].T, msgs.Pose)))
+
+
+NODE_CLASS = InferenceNode
+
+
+def main(args=None) -> None:
+    from nodes.ros import rclpy
+
+    rclpy.init(args=args)
+    node = InferenceNode()
+    try:
+        rclpy.spin(node)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()

@@ -1,0 +1,96 @@
+"""robot_node: picks up the object whose pose arrives on ``object_pose`` (camera frame) with a UR5 through
+ur-rtde (a real robot or the simulated controller), one pick at a time.
+
+States: idle -> planning -> moving -> idle (or failed); each change is published on ``robot_status``
+(std_msgs/String, JSON: state, attempt, detail). Parameters: ``host``; ``hand_eye`` (T_base_cam, 16 numbers
+row-major); ``basket`` (floor centre x y z, base frame); ``bbox_min``/``bbox_size`` (the object's model
+box, m) and ``symmetry_axis`` (object frame; [] for none); ``execute`` = pick (the whole pick-and-place)
+or pregrasp (stop above the object); ``speed``; ``dry_run``. Poses arriving while it moves are ignored.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import numpy as np
+
+from nodes.ros import Node, msgs
+from pegasus_gen.errors import PegasusError
+from robot_bridge.bridge import UR5, BridgeConfig
+from robot_bridge.grasp import plan_grasp
+from robot_bridge.pick import pick_and_place
+
+
+class RobotNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("robot_node", **kwargs)
+        p = {name: self.declare_parameter(name, default).value for name, default in (
+            ("host", "127.0.0.1"), ("hand_eye", list(np.eye(4).ravel())), ("basket", [-0.15, -0.45, 0.0]),
+            ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
+            ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False))}
+        if p["execute"] not in ("pick", "pregrasp"):
+            raise PegasusError(f"robot_node: execute must be pick or pregrasp, got {p['execute']!r}")
+        self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
+        self.params = p
+        self.robot = UR5(BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"])))
+        self.status_pub = self.create_publisher(msgs.String, "robot_status", 10)
+        self.create_subscription(msgs.PoseStamped, "object_pose", self.on_pose, 1)
+        self.busy = threading.Lock()
+        self.attempts, self.last_plan, self.results = 0, None, []
+
+    def status(self, state: str, detail: str = "") -> None:
+        self.status_pub.publish(msgs.String(data=json.dumps({"state": state, "attempt": self.attempts,
+                                                             "detail": detail})))
+
+    def on_pose(self, msg) -> None:
+        if not self.busy.acquire(blocking=False):
+            return
+        self.attempts += 1
+        threading.Thread(target=self._pick, args=(msgs.pose_to_matrix(msg.pose),), daemon=True).start()
+
+    def _pick(self, T_cam_obj: np.ndarray) -> None:
+        p = self.params
+        try:
+            if self.robot.receive is None:
+                self.robot.connect()
+            self.status("planning")
+            axis = p["symmetry_axis"] if len(p["symmetry_axis"]) == 3 else None
+            plan = plan_grasp(T_cam_obj, self.T_base_cam, p["bbox_min"], p["bbox_size"], p["basket"][:2],
+                              p["basket"][2] + 0.006, self.robot.tcp_pose(), axis=axis,
+                              envelope=self.robot.config.envelope)
+            self.last_plan = plan
+            self.status("moving")
+            if p["execute"] == "pregrasp":
+                self.robot.move_l(plan.pre_grasp)
+                self.results.append("pregrasp")
+                self.status("idle", "at the pre-grasp")
+            else:
+                result = pick_and_place(self.robot, plan)
+                self.results.append("picked" if result.held is not False else "missed")
+                self.status("idle", result.reason or "placed")
+        except PegasusError as exc:
+            self.results.append("failed")
+            self.status("failed", str(exc))
+            self.get_logger().error(f"robot_node: {exc}")
+        finally:
+            self.busy.release()
+
+    def destroy_node(self) -> None:
+        self.robot.disconnect()
+        super().destroy_node()
+
+
+NODE_CLASS = RobotNode
+
+
+def main(args=None) -> None:
+    from nodes.ros import rclpy
+
+    rclpy.init(args=args)
+    node = RobotNode()
+    try:
+        rclpy.spin(node)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
