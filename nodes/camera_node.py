@@ -1,6 +1,8 @@
 """camera_node: publishes ``image`` (sensor_msgs/Image, rgb8) and ``camera_info`` at ``rate`` Hz.
 
-Parameters: ``source`` = folder | oak; ``folder`` (images, in name order, looping when ``loop``);
+Parameters: ``source`` = folder | oak; ``folder`` (images, in name order, looping when ``loop``; with
+``wait_for_folder`` a folder that does not hold images yet is waited for, as in the generate-train-deploy
+loop);
 ``fx fy cx cy`` (px; 0 = from the OAK's calibration or a 60 degree horizontal field of view);
 ``rate`` (Hz); ``frame_id``; ``width``/``height`` (OAK output size). The OAK source uses depthai 3
 (when installed) and fails with a clear message when no device is attached.
@@ -73,9 +75,12 @@ class CameraNode(Node):
         super().__init__("camera_node", **kwargs)
         p = {name: self.declare_parameter(name, default).value for name, default in (
             ("source", "folder"), ("folder", ""), ("loop", True), ("rate", 5.0), ("frame_id", "camera"),
-            ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480))}
+            ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480),
+            ("wait_for_folder", False))}
+        self.source = None
         if p["source"] == "folder":
-            self.source = FolderSource(p["folder"], p["loop"])
+            if not p["wait_for_folder"]:
+                self.source = FolderSource(p["folder"], p["loop"])
         elif p["source"] == "oak":
             self.source = OakSource(int(p["width"]), int(p["height"]))
         else:
@@ -98,6 +103,11 @@ class CameraNode(Node):
         return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
 
     def tick(self) -> None:
+        if self.source is None:  # waiting for the folder to fill
+            try:
+                self.source = FolderSource(self.params["folder"], self.params["loop"])
+            except PegasusError:
+                return
         image = self.source.read()
         if image is None:
             self.shutdown_requested = True

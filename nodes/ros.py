@@ -32,5 +32,16 @@ except ImportError:
 
     REAL_ROS = False
 
-__all__ = ["rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs",
+
+
+def latched(depth: int = 1):
+    """QoS of a topic whose last message reaches late subscribers too (transient local)."""
+    if REAL_ROS:  # pragma: no cover
+        from rclpy.qos import DurabilityPolicy
+    else:
+        from nodes.compat import DurabilityPolicy
+    return QoSProfile(depth=depth, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+__all__ = ["latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs",
            "REAL_ROS"]

@@ -57,3 +57,20 @@ def test_bad_launch_arguments_are_clear_errors(launch_file, tmp_path, capsys):
     assert "is not of the form name:=value" in capsys.readouterr().err
     assert main(["launch", str(path), f"images:={tmp_path / 'empty'}"]) == 2
     assert "no images" in capsys.readouterr().err
+
+
+def test_generate_train_deploy_launch_runs_the_whole_loop(tmp_path, monkeypatch):
+    from pegasus_gen.assets import AssetLibrary
+    from pegasus_gen.demo_assets import build_demo_library
+
+    lib = AssetLibrary(tmp_path / "lib")
+    build_demo_library(lib)
+    monkeypatch.setenv("PEGASUS_ASSETS", str(lib.root))
+    out = tmp_path / "loop"
+    nodes = run("launch/generate_train_deploy.launch.py",
+                [f"output:={out / 'ds'}", f"run:={out / 'run'}", "scenes:=1", "frames:=3", "width:=160",
+                 "height:=120", "epochs:=1", "device:=cpu", f"images:={out / 'ds' / 'train_pbr' / '000000' / 'rgb'}",
+                 "max_images:=2"], timeout=300)
+    by_name = {n.get_name(): n for n in nodes}
+    assert by_name["inference_node"].images == 2 and by_name["inference_node"].model is not None
+    assert (out / "run" / "model.onnx").is_file() and len(list((out / "ds" / "train_pbr").glob("*/rgb/*"))) == 3

@@ -1,0 +1,42 @@
+"""Generate a dataset, train DOPE on it, and run inference on camera images with the new model.
+
+pegasus launch launch/generate_train_deploy.launch.py object:=noodle_cup_red images:=DIR [scenes:=4 ...]
+(ros2 launch works too where ROS 2 and this package are installed.)
+"""
+
+try:
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument
+    from launch.substitutions import LaunchConfiguration
+    from launch_ros.actions import Node
+except ImportError:
+    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
+
+
+def generate_launch_description():
+    arg = LaunchConfiguration
+    return LaunchDescription([
+        DeclareLaunchArgument("object", default_value="noodle_cup_red", description="object to train for"),
+        DeclareLaunchArgument("output", default_value="out/loop/dataset", description="dataset folder"),
+        DeclareLaunchArgument("run", default_value="out/loop/run", description="training output folder"),
+        DeclareLaunchArgument("scenes", default_value="4"),
+        DeclareLaunchArgument("frames", default_value="10", description="frames per scene"),
+        DeclareLaunchArgument("width", default_value="320"),
+        DeclareLaunchArgument("height", default_value="240"),
+        DeclareLaunchArgument("epochs", default_value="5"),
+        DeclareLaunchArgument("variant", default_value="light", choices=["light", "full"]),
+        DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
+        DeclareLaunchArgument("images", default_value="out/loop/dataset/train_pbr/000000/rgb",
+                              description="images the camera node plays"),
+        DeclareLaunchArgument("max_images", default_value="0", description="> 0: stop after this many inferences"),
+        Node(package="pegasus", executable="generator_node", parameters=[{
+            "output": arg("output"), "scenes": arg("scenes"), "frames_per_scene": arg("frames"),
+            "width": arg("width"), "height": arg("height"), "device": arg("device")}]),
+        Node(package="pegasus", executable="trainer_node", parameters=[{
+            "object": arg("object"), "out": arg("run"), "variant": arg("variant"), "epochs": arg("epochs"),
+            "device": arg("device")}]),
+        Node(package="pegasus", executable="camera_node", parameters=[{"folder": arg("images"), "rate": 1.0,
+                                                                        "wait_for_folder": True}]),
+        Node(package="pegasus", executable="inference_node", parameters=[{"device": "cpu",
+                                                                           "max_images": arg("max_images")}]),
+    ])

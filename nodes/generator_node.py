@@ -1,0 +1,71 @@
+"""generator_node: runs ``pegasus generate`` with a config and publishes its progress.
+
+Parameters: ``config`` (YAML path, may be empty), ``output``, ``scenes``, ``frames_per_scene``, ``width``,
+``height``, ``device`` (empty / 0: the config's), ``overrides`` (more key=value, as the CLI takes),
+``resume``. Publishes ``generator/progress`` (String JSON: frames written, frames planned, state) once a
+second and, when the dataset is complete, its path on ``dataset`` (String, transient-local so late
+subscribers get it).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from nodes.background import BackgroundJob
+from nodes.ros import Node, latched, msgs
+from pegasus_gen.config import load_config
+from pegasus_gen.generate import generate
+
+
+class GeneratorNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("generator_node", **kwargs)
+        config = self.declare_parameter("config", "").value
+        overrides = []
+        for name, key in (("output", "output"), ("scenes", "scenes"), ("frames_per_scene", "frames_per_scene"),
+                          ("width", "camera.width"), ("height", "camera.height"), ("device", "device")):
+            value = self.declare_parameter(name, "").value
+            if value not in ("", 0, None):
+                overrides.append(f"{key}={value}")
+        overrides += list(self.declare_parameter("overrides", []).value or [])
+        resume = bool(self.declare_parameter("resume", False).value)
+        self.cfg = load_config(config or None, overrides)
+        self.planned = self.cfg.scenes * self.cfg.frames_per_scene
+        self.progress_pub = self.create_publisher(msgs.String, "generator/progress", 10)
+        self.dataset_pub = self.create_publisher(msgs.String, "dataset", latched())
+        self.job = BackgroundJob(lambda: generate(self.cfg, resume=resume))
+        self.published = False
+        self.create_timer(1.0, self.tick)
+
+    def frames_written(self) -> int:
+        split = Path(self.cfg.output) / "train_pbr"
+        return sum(1 for _ in split.glob("*/rgb/*")) if split.is_dir() else 0
+
+    def tick(self) -> None:
+        state = "failed" if self.job.error else "done" if self.job.done else "running"
+        self.progress_pub.publish(msgs.String(data=json.dumps(
+            {"frames": self.frames_written(), "planned": self.planned, "state": state, "error": self.job.error})))
+        if self.job.done and not self.published:
+            self.published = True
+            if self.job.error is None:
+                self.dataset_pub.publish(msgs.String(data=str(self.job.result)))
+                self.get_logger().info(f"generator_node: dataset ready at {self.job.result}")
+            else:
+                self.get_logger().error(f"generator_node: {self.job.error}")
+                self.shutdown_requested = True
+
+
+NODE_CLASS = GeneratorNode
+
+
+def main(args=None) -> None:
+    from nodes.ros import rclpy
+
+    rclpy.init(args=args)
+    node = GeneratorNode()
+    try:
+        rclpy.spin(node)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()

@@ -1,0 +1,87 @@
+"""trainer_node: trains DOPE on the dataset named on ``dataset`` (or the ``data`` parameter), exports ONNX,
+and publishes the model's path on ``model`` (String, transient-local).
+
+Parameters: ``data`` (empty: wait for ``dataset``), ``object``, ``out``, ``variant``, ``epochs``,
+``batch_size``, ``size``, ``device``. Publishes ``trainer/progress`` (String JSON: step, epoch, loss,
+state) once a second from the run's loss.csv.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+from dope_training.export import export_checkpoint
+from dope_training.train import TrainConfig, train
+from nodes.background import BackgroundJob
+from nodes.ros import Node, latched, msgs
+
+
+class TrainerNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("trainer_node", **kwargs)
+        p = {name: self.declare_parameter(name, default).value for name, default in (
+            ("data", ""), ("object", ""), ("out", "runs/dope"), ("variant", "light"), ("epochs", 10),
+            ("batch_size", 8), ("size", 0), ("device", "auto"), ("loader_workers", 2))}
+        self.params = p
+        self.job = None
+        self.published = False
+        self.progress_pub = self.create_publisher(msgs.String, "trainer/progress", 10)
+        self.model_pub = self.create_publisher(msgs.String, "model", latched())
+        self.create_subscription(msgs.String, "dataset", lambda m: self.start(m.data), latched())
+        self.create_timer(1.0, self.tick)
+        if p["data"]:
+            self.start(p["data"])
+
+    def start(self, data: str) -> None:
+        if self.job is not None:
+            return
+        p = self.params
+        cfg = TrainConfig(data=[data], object=str(p["object"]), out=p["out"], variant=p["variant"],
+                          epochs=int(p["epochs"]), batch_size=int(p["batch_size"]), size=int(p["size"]),
+                          device=p["device"], loader_workers=int(p["loader_workers"]))
+
+        def work():
+            run = train(cfg)
+            return export_checkpoint(run / "last.pt", run / "model.onnx")[0]
+
+        self.get_logger().info(f"trainer_node: training on {data}")
+        self.job = BackgroundJob(work)
+
+    def tick(self) -> None:
+        if self.job is None:
+            return
+        rows = []
+        loss_csv = Path(self.params["out"]) / "loss.csv"
+        if loss_csv.is_file():
+            with open(loss_csv, newline="") as f:
+                rows = list(csv.DictReader(f))
+        last = rows[-1] if rows else {}
+        state = "failed" if self.job.error else "done" if self.job.done else "running"
+        self.progress_pub.publish(msgs.String(data=json.dumps(
+            {"step": int(last.get("step", 0)), "epoch": int(last.get("epoch", 0)),
+             "loss": float(last.get("loss", "nan")), "state": state, "error": self.job.error})))
+        if self.job.done and not self.published:
+            self.published = True
+            if self.job.error is None:
+                self.model_pub.publish(msgs.String(data=str(self.job.result)))
+                self.get_logger().info(f"trainer_node: model ready at {self.job.result}")
+            else:
+                self.get_logger().error(f"trainer_node: {self.job.error}")
+                self.shutdown_requested = True
+
+
+NODE_CLASS = TrainerNode
+
+
+def main(args=None) -> None:
+    from nodes.ros import rclpy
+
+    rclpy.init(args=args)
+    node = TrainerNode()
+    try:
+        rclpy.spin(node)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
