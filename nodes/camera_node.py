@@ -1,9 +1,12 @@
 """camera_node: publishes ``image`` (sensor_msgs/Image, rgb8) and ``camera_info`` at ``rate`` Hz.
 
-Parameters: ``source`` = folder | oak; ``folder`` (images, in name order, looping when ``loop``; with
+Parameters: ``source`` = folder | oak | sim; ``folder`` (images, in name order, looping when ``loop``; with
 ``wait_for_folder`` a folder that does not hold images yet is waited for, as in the generate-train-deploy
 loop);
-``fx fy cx cy`` (px; 0 = from the OAK's calibration or a 60 degree horizontal field of view);
+``fx fy cx cy`` (px; 0 = from the OAK's calibration or a 60 degree horizontal field of view); for ``sim``: ``host`` (the
+simulated controller), ``library``, ``environment``, ``T_world_base`` and ``T_world_cam`` (16 numbers each,
+row-major) — each frame renders the environment's splats and every object of the simulated cell at its
+current pose (asset name = the sim object's name up to '#'), with the splat renderer on ``device``;
 ``rate`` (Hz); ``frame_id``; ``width``/``height`` (OAK output size). The OAK source uses depthai 3
 (when installed) and fails with a clear message when no device is attached.
 """
@@ -70,22 +73,75 @@ class OakSource:
         return self.K
 
 
+class SimSource:
+    """Renders the simulated cell from splats: the environment plus each object at the pose the simulated
+    controller reports (its PyBullet state), so the image is the digital twin of the physics."""
+
+    def __init__(self, host: str, library: str, environment: str, T_world_base, T_world_cam, width: int,
+                 height: int, K: np.ndarray, device: str):
+        from pegasus_gen.assets import AssetLibrary
+        from robot_bridge.sim_controller import dashboard_command
+
+        self.command = lambda text: dashboard_command(host, text)
+        self.library = AssetLibrary(library or None)
+        self.environment = self.library.get(environment).splats.with_label(0)
+        self.T_world_base = np.array(T_world_base, dtype=np.float64).reshape(4, 4)
+        self.T_cam_world = np.linalg.inv(np.array(T_world_cam, dtype=np.float64).reshape(4, 4))
+        self.width, self.height, self.K, self.device = width, height, K, device
+        self.splats = {}
+
+    def object_poses(self) -> dict[str, np.ndarray]:
+        """{sim object name: T_world_obj}."""
+        from scipy.spatial.transform import Rotation
+
+        poses = {}
+        for name in self.command("sim list").split():
+            values = [float(v) for v in self.command(f"sim pose {name}").split()]
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
+            T[:3, 3] = values[:3]
+            poses[name] = self.T_world_base @ T
+        return poses
+
+    def read(self) -> np.ndarray:
+        from pegasus_gen.images import rgb_to_uint8
+        from pegasus_gen.render import render
+
+        parts = [self.environment]
+        for k, (name, T) in enumerate(self.object_poses().items()):
+            asset = name.split("#")[0]
+            if asset not in self.splats:
+                self.splats[asset] = self.library.get(asset).splats
+            parts.append(self.splats[asset].transformed(T).with_label(k + 1))
+        out = render(parts, self.K, self.T_cam_world, self.width, self.height, device=self.device)
+        return rgb_to_uint8(out.rgb)
+
+    def intrinsics(self, width: int, height: int):
+        return self.K
+
+
 class CameraNode(Node):
     def __init__(self, **kwargs):
         super().__init__("camera_node", **kwargs)
         p = {name: self.declare_parameter(name, default).value for name, default in (
             ("source", "folder"), ("folder", ""), ("loop", True), ("rate", 5.0), ("frame_id", "camera"),
             ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480),
-            ("wait_for_folder", False))}
+            ("wait_for_folder", False), ("host", "127.0.0.1"), ("library", ""), ("environment", "wooden_table"),
+            ("T_world_base", list(np.eye(4).ravel())), ("T_world_cam", list(np.eye(4).ravel())),
+            ("device", "auto"))}
         self.source = None
         if p["source"] == "folder":
             if not p["wait_for_folder"]:
                 self.source = FolderSource(p["folder"], p["loop"])
         elif p["source"] == "oak":
             self.source = OakSource(int(p["width"]), int(p["height"]))
-        else:
-            raise PegasusError(f"camera_node: source must be folder or oak, got {p['source']!r}")
+        elif p["source"] != "sim":
+            raise PegasusError(f"camera_node: source must be folder, oak or sim, got {p['source']!r}")
         self.params = p
+        if p["source"] == "sim":
+            w, h = int(p["width"]), int(p["height"])
+            self.source = SimSource(p["host"], p["library"], p["environment"], p["T_world_base"], p["T_world_cam"],
+                                    w, h, self.camera_matrix(w, h), p["device"])
         self.image_pub = self.create_publisher(msgs.Image, "image", 5)
         self.info_pub = self.create_publisher(msgs.CameraInfo, "camera_info", 5)
         self.frames = 0
@@ -96,7 +152,7 @@ class CameraNode(Node):
         if p["fx"] > 0:
             return np.array([[p["fx"], 0, p["cx"] or (width - 1) / 2], [0, p["fy"] or p["fx"], p["cy"] or (height - 1) / 2],
                              [0, 0, 1]])
-        K = self.source.intrinsics(width, height)
+        K = self.source.intrinsics(width, height) if self.source is not None else None
         if K is not None:
             return K
         f = (width / 2) / np.tan(np.radians(30.0))

@@ -5,7 +5,9 @@ States: idle -> planning -> moving -> idle (or failed); each change is published
 (std_msgs/String, JSON: state, attempt, detail). Parameters: ``host``; ``hand_eye`` (T_base_cam, 16 numbers
 row-major); ``basket`` (floor centre x y z, base frame); ``bbox_min``/``bbox_size`` (the object's model
 box, m) and ``symmetry_axis`` (object frame; [] for none); ``execute`` = pick (the whole pick-and-place)
-or pregrasp (stop above the object); ``speed``; ``dry_run``. Poses arriving while it moves are ignored.
+or pregrasp (stop above the object); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per
+message on ``attempt``, as evaluator_node sends them; the status carries that attempt's number). Poses
+arriving while it moves are ignored.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import threading
 
 import numpy as np
 
-from nodes.ros import Node, msgs
+from nodes.ros import Node, latched, msgs
 from pegasus_gen.errors import PegasusError
 from robot_bridge.bridge import UR5, BridgeConfig
 from robot_bridge.grasp import plan_grasp
@@ -28,7 +30,8 @@ class RobotNode(Node):
         p = {name: self.declare_parameter(name, default).value for name, default in (
             ("host", "127.0.0.1"), ("hand_eye", list(np.eye(4).ravel())), ("basket", [-0.15, -0.45, 0.0]),
             ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
-            ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False))}
+            ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),
+            ("wait_for_attempt", False))}
         if p["execute"] not in ("pick", "pregrasp"):
             raise PegasusError(f"robot_node: execute must be pick or pregrasp, got {p['execute']!r}")
         self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
@@ -36,6 +39,8 @@ class RobotNode(Node):
         self.robot = UR5(BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"])))
         self.status_pub = self.create_publisher(msgs.String, "robot_status", 10)
         self.create_subscription(msgs.PoseStamped, "object_pose", self.on_pose, 1)
+        self.create_subscription(msgs.String, "attempt", self.on_attempt, latched())
+        self.armed = None  # the attempt number a pose may start (with wait_for_attempt)
         self.busy = threading.Lock()
         self.attempts, self.last_plan, self.results = 0, None, []
 
@@ -43,10 +48,18 @@ class RobotNode(Node):
         self.status_pub.publish(msgs.String(data=json.dumps({"state": state, "attempt": self.attempts,
                                                              "detail": detail})))
 
+    def on_attempt(self, msg) -> None:
+        self.armed = json.loads(msg.data)["attempt"]
+
     def on_pose(self, msg) -> None:
+        if self.params["wait_for_attempt"] and self.armed is None:
+            return
         if not self.busy.acquire(blocking=False):
             return
-        self.attempts += 1
+        if self.params["wait_for_attempt"]:
+            self.attempts, self.armed = self.armed, None
+        else:
+            self.attempts += 1
         threading.Thread(target=self._pick, args=(msgs.pose_to_matrix(msg.pose),), daemon=True).start()
 
     def _pick(self, T_cam_obj: np.ndarray) -> None:

@@ -220,7 +220,8 @@ class SimController:
     def _sim_answer(self, words: list[str]) -> str:
         """Simulation-only dashboard commands (no UR controller has them), for tests and the sim loop:
         ``sim add NAME URDF x y z qx qy qz qw``, ``sim pose NAME`` (-> x y z qx qy qz qw, base frame),
-        ``sim remove NAME``, ``sim basket x y z`` (adds the basket), ``sim in_basket NAME`` (-> true/false)."""
+        ``sim remove NAME``, ``sim basket x y z`` (adds the basket), ``sim in_basket NAME`` (-> true/false),
+        ``sim list`` (-> the object names)."""
         from scipy.spatial.transform import Rotation
 
         sim = self.sim
@@ -245,6 +246,8 @@ class SimController:
                     return "basket added"
                 if verb == "in_basket":
                     return str(sim.in_basket(args[0])).lower()
+                if verb == "list":
+                    return " ".join(sorted(sim.objects))
         except (IndexError, KeyError, ValueError) as exc:
             return f"sim: error: {exc!r}"
         return f"sim: unknown command {words}"
@@ -561,6 +564,15 @@ class _ControlProgram:
         return True
 
 
+def dashboard_command(host: str, text: str, timeout: float = 5.0) -> str:
+    """Send one dashboard command to the controller at ``host`` and return its answer line."""
+    with socket.create_connection((host, DASHBOARD_PORT), timeout=timeout) as conn:
+        reader = conn.makefile("r")
+        reader.readline()  # welcome
+        conn.sendall((text + "\n").encode())
+        return reader.readline().strip()
+
+
 class SimControllerProcess:
     """The simulated controller in a child process (ur-rtde's Python bindings hold the GIL while they wait
     on the controller, so client and controller cannot share a process): ``start()`` returns once the
@@ -597,11 +609,7 @@ class SimControllerProcess:
 
     def command(self, text: str, timeout: float = 5.0) -> str:
         """One dashboard command (e.g. the ``sim ...`` ones) and its answer line."""
-        with socket.create_connection((self.host, DASHBOARD_PORT), timeout=timeout) as conn:
-            reader = conn.makefile("r")
-            reader.readline()  # welcome
-            conn.sendall((text + "\n").encode())
-            return reader.readline().strip()
+        return dashboard_command(self.host, text, timeout)
 
     def log_lines(self) -> list[str]:
         return self.log_path.read_text().splitlines() if self.log_path.is_file() else []

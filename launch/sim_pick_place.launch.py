@@ -1,0 +1,57 @@
+"""Closed-loop grasp evaluation in simulation: the simulated UR5 cell (PyBullet behind the simulated UR
+controller) is the digital twin of a splat scene; a camera renders it from splats, DOPE estimates the
+object's pose, the robot node picks through the real ur-rtde client, the evaluator counts.
+
+pegasus launch launch/sim_pick_place.launch.py model:=MODEL.onnx [attempts:=20 objects:=a,b ...]
+(or `pegasus sim-grasp`). The cell: the environment's table top is the world's z = 0; the robot's base
+stands on it at world (0.45, 0, 0), facing -x; objects appear in base x -0.55..-0.38, y -0.12..0.12; the
+basket stands at base (-0.25, -0.28); the camera looks down at the pick area from world (0, -0.35, 0.55).
+"""
+
+import numpy as np
+
+from pegasus_gen.cameras import look_at
+
+try:
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument
+    from launch.substitutions import LaunchConfiguration
+    from launch_ros.actions import Node
+except ImportError:
+    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
+
+T_WORLD_BASE = np.array([[1.0, 0, 0, 0.45], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+T_WORLD_CAM = np.linalg.inv(look_at([0.0, -0.35, 0.55], [0.0, 0.0, 0.0]))
+T_BASE_CAM = np.linalg.inv(T_WORLD_BASE) @ T_WORLD_CAM
+BASKET = [-0.25, -0.28, 0.0]
+
+
+def generate_launch_description():
+    arg = LaunchConfiguration
+    return LaunchDescription([
+        DeclareLaunchArgument("model", default_value="", description="DOPE ONNX export (empty with pose_source:=ground_truth)"),
+        DeclareLaunchArgument("pose_source", default_value="dope", choices=["dope", "ground_truth"]),
+        DeclareLaunchArgument("objects", default_value="noodle_cup_red", description="asset names, comma-separated"),
+        DeclareLaunchArgument("attempts", default_value="20"),
+        DeclareLaunchArgument("environment", default_value="wooden_table"),
+        DeclareLaunchArgument("library", default_value="", description="asset library (default: $PEGASUS_ASSETS)"),
+        DeclareLaunchArgument("host", default_value="127.0.0.1", description="loopback address of the sim controller"),
+        DeclareLaunchArgument("time_scale", default_value="1.0"),
+        DeclareLaunchArgument("report", default_value="out/sim_grasp"),
+        DeclareLaunchArgument("seed", default_value="0"),
+        DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
+        Node(package="pegasus", executable="sim_controller_node", parameters=[{
+            "host": arg("host"), "time_scale": arg("time_scale"), "basket": BASKET}]),
+        Node(package="pegasus", executable="camera_node", parameters=[{
+            "source": "sim", "host": arg("host"), "library": arg("library"), "environment": arg("environment"),
+            "T_world_base": T_WORLD_BASE.ravel().tolist(), "T_world_cam": T_WORLD_CAM.ravel().tolist(),
+            "width": 640, "height": 480, "rate": 2.0, "device": arg("device")}]),
+        Node(package="pegasus", executable="inference_node", parameters=[{"model": arg("model")}]),
+        Node(package="pegasus", executable="robot_node", parameters=[{
+            "host": arg("host"), "hand_eye": T_BASE_CAM.ravel().tolist(), "basket": BASKET,
+            "wait_for_attempt": True, "speed": 0.3}]),
+        Node(package="pegasus", executable="evaluator_node", parameters=[{
+            "host": arg("host"), "library": arg("library"), "objects": arg("objects"), "attempts": arg("attempts"),
+            "seed": arg("seed"), "hand_eye": T_BASE_CAM.ravel().tolist(), "report": arg("report"),
+            "pose_source": arg("pose_source")}]),
+    ])
