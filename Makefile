@@ -17,7 +17,8 @@ test-all: $(STAMP)
 	$(BIN)/python -m pytest -m ""
 
 demo: $(STAMP)
-	$(BIN)/pegasus demo --out out/demo
+	rm -rf out/demo
+	$(BIN)/pegasus demo-loop --out out/demo
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/render.py

@@ -20,6 +20,9 @@ def generate_launch_description():
         DeclareLaunchArgument("output", default_value="out/loop/dataset", description="dataset folder"),
         DeclareLaunchArgument("run", default_value="out/loop/run", description="training output folder"),
         DeclareLaunchArgument("scenes", default_value="4"),
+        DeclareLaunchArgument("library", default_value="", description="asset library (default: $PEGASUS_ASSETS)"),
+        DeclareLaunchArgument("environments", default_value="", description="YAML list (default: the config's)"),
+        DeclareLaunchArgument("objects_config", default_value="", description="YAML list of {asset, count}"),
         DeclareLaunchArgument("frames", default_value="10", description="frames per scene"),
         DeclareLaunchArgument("width", default_value="320"),
         DeclareLaunchArgument("height", default_value="240"),
@@ -31,7 +34,8 @@ def generate_launch_description():
         DeclareLaunchArgument("max_images", default_value="0", description="> 0: stop after this many inferences"),
         Node(package="pegasus", executable="generator_node", parameters=[{
             "output": arg("output"), "scenes": arg("scenes"), "frames_per_scene": arg("frames"),
-            "width": arg("width"), "height": arg("height"), "device": arg("device")}]),
+            "width": arg("width"), "height": arg("height"), "device": arg("device"), "library": arg("library"),
+            "environments": arg("environments"), "objects": arg("objects_config")}]),
         Node(package="pegasus", executable="trainer_node", parameters=[{
             "object": arg("object"), "out": arg("run"), "variant": arg("variant"), "epochs": arg("epochs"),
             "device": arg("device")}]),

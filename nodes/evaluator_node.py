@@ -6,7 +6,8 @@ yaw in the pick area (base frame ``spawn_x``/``spawn_y``) through the simulated 
 With ``pose_source`` = ground_truth the node itself then publishes the true pose on ``object_pose`` (a
 perfect estimator: grasping alone is measured); with dope the inference node's estimate drives the robot.
 ``objects`` is a list or a comma-separated string. The attempt ends when robot_node reports idle or failed on
-``robot_status``, or after ``timeout_s``. Success: the object lies in the basket. Failure causes: no
+``robot_status``, after ``timeout_s``, or when the robot has not started ``detect_timeout_s`` after the
+announcement. Success: the object lies in the basket. Failure causes: no
 detection (no pose arrived), robot error (the status's detail), missed grasp, dropped (held but not in
 the basket). Pose error: ADD and ADD-S of the first pose estimate of the attempt against the truth.
 After ``attempts`` it writes ``report`` /report.json and strip.png (per attempt: the camera's overlay
@@ -38,6 +39,7 @@ class EvaluatorNode(Node):
         p = {name: self.declare_parameter(name, default).value for name, default in (
             ("host", "127.0.0.1"), ("library", ""), ("objects", ["noodle_cup_red"]), ("attempts", 20), ("seed", 0),
             ("spawn_x", [-0.55, -0.38]), ("spawn_y", [-0.12, 0.12]), ("settle_s", 1.0), ("timeout_s", 60.0),
+            ("detect_timeout_s", 10.0),
             ("hand_eye", list(np.eye(4).ravel())), ("pose_source", "dope"), ("report", "out/sim_grasp"))}
         if isinstance(p["objects"], str):
             p["objects"] = [o.strip() for o in p["objects"].split(",") if o.strip()]
@@ -111,6 +113,8 @@ class EvaluatorNode(Node):
 
     def on_status(self, msg) -> None:
         status = json.loads(msg.data)
+        if status["state"] in ("planning", "moving") and self.current is not None:
+            self.current["robot_started"] = True
         if status["state"] in ("idle", "failed") and self.current is not None \
                 and status.get("attempt") == self.current["attempt"]:
             self.pending_status = status  # handled by tick, where every state change happens
@@ -122,7 +126,8 @@ class EvaluatorNode(Node):
         if in_basket:
             cause = ""
         elif status is None:
-            cause = "no detection" if c["estimate"] is None else "robot timeout"
+            cause = "no detection" if c["estimate"] is None else (
+                "robot timeout" if c.get("robot_started") else "robot did not start")
         elif status["state"] == "failed":
             cause = f"robot error: {status['detail']}"
         elif "nothing between the jaws" in status["detail"]:
@@ -176,7 +181,10 @@ class EvaluatorNode(Node):
         elif self.state == "running" and self.pending_status is not None:
             status, self.pending_status = self.pending_status, None
             self.finish(status)
-        elif self.state == "running" and time.monotonic() - self.current["announced"] > float(p["timeout_s"]):
+        elif self.state == "running" and (
+                time.monotonic() - self.current["announced"] > float(p["timeout_s"])
+                or (not self.current.get("robot_started")
+                    and time.monotonic() - self.current["announced"] > float(p["detect_timeout_s"]))):
             self.finish(None)
         elif self.state == "running" and p["pose_source"] == "ground_truth":
             self.publish_truth()

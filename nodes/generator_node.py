@@ -1,8 +1,8 @@
 """generator_node: runs ``pegasus generate`` with a config and publishes its progress.
 
 Parameters: ``config`` (YAML path, may be empty), ``output``, ``scenes``, ``frames_per_scene``, ``width``,
-``height``, ``device`` (empty / 0: the config's), ``overrides`` (more key=value, as the CLI takes),
-``resume``. Publishes ``generator/progress`` (String JSON: frames written, frames planned, state) once a
+``height``, ``device``, ``library``, ``environments`` and ``objects`` (YAML text, as the config keys) (empty /
+0: the config's), ``overrides`` (more key=value, as the CLI takes), ``resume``. Publishes ``generator/progress`` (String JSON: frames written, frames planned, state) once a
 second and, when the dataset is complete, its path on ``dataset`` (String, transient-local so late
 subscribers get it).
 """
@@ -24,7 +24,8 @@ class GeneratorNode(Node):
         config = self.declare_parameter("config", "").value
         overrides = []
         for name, key in (("output", "output"), ("scenes", "scenes"), ("frames_per_scene", "frames_per_scene"),
-                          ("width", "camera.width"), ("height", "camera.height"), ("device", "device")):
+                          ("width", "camera.width"), ("height", "camera.height"), ("device", "device"),
+                          ("library", "library"), ("environments", "environments"), ("objects", "objects")):
             value = self.declare_parameter(name, "").value
             if value not in ("", 0, None):
                 overrides.append(f"{key}={value}")

@@ -34,6 +34,11 @@ class RobotNode(Node):
             ("wait_for_attempt", False))}
         if p["execute"] not in ("pick", "pregrasp"):
             raise PegasusError(f"robot_node: execute must be pick or pregrasp, got {p['execute']!r}")
+        for name in ("hand_eye", "basket"):  # launch arguments arrive as text: "1 0 0 0.2 ..."
+            if isinstance(p[name], str):
+                p[name] = [float(v) for v in p[name].replace(",", " ").split()]
+        if len(p["hand_eye"]) != 16 or len(p["basket"]) != 3:
+            raise PegasusError("robot_node: hand_eye needs 16 numbers (T_base_cam row-major), basket 3 (x y z)")
         self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
         self.params = p
         self.robot = UR5(BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"])))

@@ -321,6 +321,40 @@ def cmd_launch(args) -> int:
     return 0
 
 
+LAUNCH_DIR = Path(__file__).resolve().parents[1] / "launch"
+
+
+def cmd_sim_grasp(args) -> int:
+    import json
+
+    from nodes.launch import run
+
+    overrides = [f"pose_source:={'ground_truth' if args.ground_truth else 'dope'}", f"attempts:={args.attempts}",
+                 f"objects:={args.objects}", f"host:={args.host}", f"time_scale:={args.time_scale}",
+                 f"report:={args.out}", f"seed:={args.seed}", f"device:={args.device}"]
+    if args.model:
+        overrides.append(f"model:={args.model}")
+    elif not args.ground_truth:
+        raise PegasusError("sim-grasp: give --model MODEL.onnx (or --ground-truth to measure grasping alone)")
+    if args.library:
+        overrides.append(f"library:={args.library}")
+    run(LAUNCH_DIR / "sim_pick_place.launch.py", overrides)
+    report = json.loads((Path(args.out) / "report.json").read_text())
+    print(f"sim-grasp ({report['pose_source']} poses): {report['successes']} of {report['attempts']} in the basket; "
+          f"failures: {report['failure_causes'] or 'none'}")
+    print(f"report: {Path(args.out) / 'report.json'}    strip: {Path(args.out) / 'strip.png'}")
+    return 0
+
+
+def cmd_demo_loop(args) -> int:
+    from nodes.demo import run_demo
+
+    t0 = time.perf_counter()
+    report = run_demo(args.out, full=args.full, library=args.library, host=args.host)
+    print(f"demo loop done in {(time.perf_counter() - t0) / 60:.1f} min; report: {report}")
+    return 0
+
+
 def _add_camera_args(p):
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
@@ -449,6 +483,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", help="a *.launch.py file")
     p.add_argument("arguments", nargs="*", metavar="name:=value")
     p.set_defaults(func=cmd_launch)
+
+    p = sub.add_parser("sim-grasp", help="closed-loop grasp evaluation in the simulated cell (sim_pick_place.launch.py)")
+    p.add_argument("--model", help="DOPE ONNX export")
+    p.add_argument("--ground-truth", action="store_true", help="drive the robot with the true poses (grasping alone)")
+    p.add_argument("--attempts", type=int, default=20)
+    p.add_argument("--objects", default="noodle_cup_red,noodle_cup_curry", help="asset names, comma-separated")
+    p.add_argument("--out", default="out/sim_grasp", help="report folder")
+    p.add_argument("--host", default="127.0.0.1", help="loopback address for the simulated controller")
+    p.add_argument("--time-scale", type=float, default=2.0, help="simulated seconds per second")
+    p.add_argument("--library", help="asset library (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="splat renderer")
+    p.set_defaults(func=cmd_sim_grasp)
+
+    p = sub.add_parser("demo-loop", help="generate -> train -> deploy -> grasp on the demo assets, with an HTML report")
+    p.add_argument("--out", default="out/demo-loop", help="output folder (must be empty)")
+    p.add_argument("--full", action="store_true", help="the GPU-scale settings (5,000 frames, full DOPE, 20 grasps)")
+    p.add_argument("--library", help="asset library (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
+    p.add_argument("--host", default="127.0.0.1", help="loopback address for the simulated controller")
+    p.set_defaults(func=cmd_demo_loop)
 
     assets = sub.add_parser("assets", help="asset library: list, show, import")
     assets.add_argument("--library", help="library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")

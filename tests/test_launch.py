@@ -74,3 +74,15 @@ def test_generate_train_deploy_launch_runs_the_whole_loop(tmp_path, monkeypatch)
     by_name = {n.get_name(): n for n in nodes}
     assert by_name["inference_node"].images == 2 and by_name["inference_node"].model is not None
     assert (out / "run" / "model.onnx").is_file() and len(list((out / "ds" / "train_pbr").glob("*/rgb/*"))) == 3
+
+
+def test_shipped_launch_files_parse_and_name_their_required_arguments():
+    with pytest.raises(PegasusError, match="'host' has no default"):
+        run("launch/ur5_pick_place.launch.py", [])
+    from nodes.launch import load_description, resolve_arguments
+
+    for name in ("generate_train_deploy", "sim_pick_place", "ur5_pick_place"):
+        description = load_description(f"launch/{name}.launch.py")
+        assert any(type(e).__name__ == "Node" for e in description.entities)
+    args = resolve_arguments(load_description("launch/sim_pick_place.launch.py"), {"attempts": "3"})
+    assert args["attempts"] == "3" and args["pose_source"] == "dope"

@@ -1,0 +1,37 @@
+"""Pick and place on a real UR5: an OAK camera (or an image folder), DOPE on ONNX, the robot node through
+ur-rtde. Starts in dry-run mode: the robot node only logs what it would send until dry_run:=false.
+
+pegasus launch launch/ur5_pick_place.launch.py host:=192.168.1.10 model:=MODEL.onnx \\
+    hand_eye:="r11 r12 r13 tx r21 ... 0 0 0 1" basket:="-0.25 -0.28 0.0" [dry_run:=false]
+hand_eye is T_base_cam (camera pose in the robot base frame, 16 numbers row-major, metres) from your
+hand-eye calibration; basket is the basket floor centre in the base frame.
+"""
+
+try:
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument
+    from launch.substitutions import LaunchConfiguration
+    from launch_ros.actions import Node
+except ImportError:
+    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
+
+
+def generate_launch_description():
+    arg = LaunchConfiguration
+    return LaunchDescription([
+        DeclareLaunchArgument("host", description="the UR controller's address"),
+        DeclareLaunchArgument("model", description="DOPE ONNX export"),
+        DeclareLaunchArgument("hand_eye", description="T_base_cam, 16 numbers row-major"),
+        DeclareLaunchArgument("basket", default_value="-0.25 -0.28 0.0", description="basket floor centre x y z"),
+        DeclareLaunchArgument("source", default_value="oak", choices=["oak", "folder"]),
+        DeclareLaunchArgument("images", default_value="", description="image folder (source:=folder)"),
+        DeclareLaunchArgument("execute", default_value="pregrasp", choices=["pregrasp", "pick"]),
+        DeclareLaunchArgument("dry_run", default_value="true", choices=["true", "false"]),
+        DeclareLaunchArgument("speed", default_value="0.1", description="TCP speed, m/s"),
+        Node(package="pegasus", executable="camera_node", parameters=[{
+            "source": arg("source"), "folder": arg("images"), "rate": 2.0}]),
+        Node(package="pegasus", executable="inference_node", parameters=[{"model": arg("model"), "device": "auto"}]),
+        Node(package="pegasus", executable="robot_node", parameters=[{
+            "host": arg("host"), "hand_eye": arg("hand_eye"), "basket": arg("basket"), "execute": arg("execute"),
+            "dry_run": arg("dry_run"), "speed": arg("speed")}]),
+    ])
