@@ -27,6 +27,7 @@ def generate_launch_description():
         DeclareLaunchArgument("width", default_value="320"),
         DeclareLaunchArgument("height", default_value="240"),
         DeclareLaunchArgument("epochs", default_value="5"),
+        DeclareLaunchArgument("size", default_value="0", description="training crop, px (0: the variant's)"),
         DeclareLaunchArgument("variant", default_value="light", choices=["light", "full"]),
         DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
         DeclareLaunchArgument("images", default_value="out/loop/dataset/train_pbr/000000/rgb",
@@ -38,7 +39,7 @@ def generate_launch_description():
             "environments": arg("environments"), "objects": arg("objects_config")}]),
         Node(package="pegasus", executable="trainer_node", parameters=[{
             "object": arg("object"), "out": arg("run"), "variant": arg("variant"), "epochs": arg("epochs"),
-            "device": arg("device")}]),
+            "size": arg("size"), "device": arg("device")}]),
         Node(package="pegasus", executable="camera_node", parameters=[{"folder": arg("images"), "rate": 1.0,
                                                                         "wait_for_folder": True}]),
         Node(package="pegasus", executable="inference_node", parameters=[{"device": "cpu",

@@ -28,7 +28,8 @@ class DemoSettings:
     width: int = 320
     height: int = 240
     variant: str = "light"
-    epochs: int = 30
+    size: int = 160  # crop, px: the light model leaves its all-zero start sooner on small crops
+    epochs: int = 80
     attempts: int = 10
     objects: str = "noodle_cup_red"
     device: str = "cpu"
@@ -37,7 +38,8 @@ class DemoSettings:
     @staticmethod
     def of(full: bool) -> "DemoSettings":
         if full:
-            return DemoSettings(scenes=200, frames=25, width=640, height=480, variant="full", epochs=30, attempts=20,
+            return DemoSettings(scenes=200, frames=25, width=640, height=480, variant="full", size=400, epochs=30,
+                                attempts=20,
                                 objects="noodle_cup_red", device="auto", time_scale=2.0)
         return DemoSettings()
 
@@ -64,7 +66,8 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     nodes = run_launch(LAUNCH_DIR / "generate_train_deploy.launch.py", [
         f"object:={target}", f"output:={dataset}", f"run:={train_run}", f"scenes:={s.scenes}",
         f"frames:={s.frames}", f"width:={s.width}", f"height:={s.height}", f"epochs:={s.epochs}",
-        f"variant:={s.variant}", f"device:={s.device}", f"images:={dataset / 'train_pbr' / '000000' / 'rgb'}",
+        f"variant:={s.variant}", f"size:={s.size}", f"device:={s.device}",
+        f"images:={dataset / 'train_pbr' / '000000' / 'rgb'}",
         "max_images:=3", f"library:={lib.root}", "environments:=[wooden_table, tiled_floor]",
         f"objects_config:={objects}"])
     times["generate, train, export, infer (launch)"] = time.monotonic() - t0
@@ -113,8 +116,8 @@ def write_html(out: Path, s: DemoSettings, evaluation: dict, grasp: dict, times:
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>PEGASUS demo</title>
 <style>body{{font-family:sans-serif;max-width:1000px;margin:auto}} img{{max-width:100%}} td{{padding:2px 10px}}</style>
 </head><body><h1>PEGASUS demo: generate, train, deploy, grasp</h1>
-<p>Settings: {s.scenes} scenes x {s.frames} frames at {s.width}x{s.height}; DOPE-{s.variant}, {s.epochs} epochs on
-{s.device}; {s.attempts} grasp attempts ({html.escape(s.objects)}).</p>
+<p>Settings: {s.scenes} scenes x {s.frames} frames at {s.width}x{s.height}; DOPE-{s.variant} on {s.size} px crops,
+{s.epochs} epochs on {s.device}; {s.attempts} grasp attempts ({html.escape(s.objects)}).</p>
 <table>{rows}</table>
 <h2>Training</h2><img src="figures/loss.png"><img src="figures/beliefs.png">
 <h2>Pose accuracy on an environment left out of training</h2>
