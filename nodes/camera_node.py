@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nodes.ros import Node, msgs
+from nodes.ros import Node, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -182,12 +182,5 @@ NODE_CLASS = CameraNode
 
 
 def main(args=None) -> None:
-    from nodes.ros import rclpy
-
-    rclpy.init(args=args)
-    node = CameraNode()
-    try:
-        rclpy.spin(node)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+    """Console entry point (``ros2 run`` style)."""
+    run_node(NODE_CLASS, args)

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dope_training.evaluate import add_error, adds_error
-from nodes.ros import Node, latched, msgs
+from nodes.ros import Node, latched, msgs, run_node
 from pegasus_gen.assets import AssetLibrary
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.images import write_image
@@ -217,12 +217,5 @@ NODE_CLASS = EvaluatorNode
 
 
 def main(args=None) -> None:
-    from nodes.ros import rclpy
-
-    rclpy.init(args=args)
-    node = EvaluatorNode()
-    try:
-        rclpy.spin(node)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+    """Console entry point (``ros2 run`` style)."""
+    run_node(NODE_CLASS, args)

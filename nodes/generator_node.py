@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from nodes.background import BackgroundJob
-from nodes.ros import Node, latched, msgs
+from nodes.ros import Node, latched, msgs, run_node
 from pegasus_gen.config import load_config
 from pegasus_gen.generate import generate
 
@@ -61,12 +61,5 @@ NODE_CLASS = GeneratorNode
 
 
 def main(args=None) -> None:
-    from nodes.ros import rclpy
-
-    rclpy.init(args=args)
-    node = GeneratorNode()
-    try:
-        rclpy.spin(node)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+    """Console entry point (``ros2 run`` style)."""
+    run_node(NODE_CLASS, args)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from dope_training.infer import DopeModel
-from nodes.ros import Node, latched, msgs
+from nodes.ros import Node, latched, msgs, run_node
 from pegasus_gen.view import draw_instance
 
 
@@ -72,12 +72,5 @@ NODE_CLASS = InferenceNode
 
 
 def main(args=None) -> None:
-    from nodes.ros import rclpy
-
-    rclpy.init(args=args)
-    node = InferenceNode()
-    try:
-        rclpy.spin(node)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+    """Console entry point (``ros2 run`` style)."""
+    run_node(NODE_CLASS, args)

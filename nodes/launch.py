@@ -7,7 +7,8 @@ it) and from here otherwise, and defines ``generate_launch_description()``. The 
 declared arguments (defaults, ``name:=value`` overrides; an undeclared or invalid one is an error naming
 the declared ones), builds every Node action's node in this process from ``nodes.<executable>``'s
 ``NODE_CLASS`` with its parameters (LaunchConfiguration substituted) as overrides, and spins them on one
-multi-threaded executor until a node calls ``request_shutdown`` or Ctrl-C.
+multi-threaded executor until a node sets ``shutdown_requested`` or Ctrl-C. Where ROS 2 is installed
+the launch files get the real launch classes: run them with ``ros2 launch`` there.
 """
 
 from __future__ import annotations
@@ -101,8 +102,6 @@ def _substitute(value, arguments: dict[str, str]):
         return _typed(arguments[value.variable_name])
     if isinstance(value, list):
         return [_substitute(v, arguments) for v in value]
-    if hasattr(value, "variable_name"):  # a real launch LaunchConfiguration in a ROS 2 install
-        return _typed(arguments[value.variable_name])
     return value
 
 
@@ -125,7 +124,7 @@ def build_nodes(description: LaunchDescription, arguments: dict[str, str], conte
 
     built = []
     for entity in description.entities:
-        if not isinstance(entity, Node) and type(entity).__name__ != "Node":
+        if not isinstance(entity, Node):
             continue
         try:
             module = importlib.import_module(f"nodes.{entity.executable}")

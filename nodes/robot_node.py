@@ -17,7 +17,7 @@ import threading
 
 import numpy as np
 
-from nodes.ros import Node, latched, msgs
+from nodes.ros import Node, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 from robot_bridge.bridge import UR5, BridgeConfig
 from robot_bridge.grasp import plan_grasp
@@ -103,12 +103,5 @@ NODE_CLASS = RobotNode
 
 
 def main(args=None) -> None:
-    from nodes.ros import rclpy
-
-    rclpy.init(args=args)
-    node = RobotNode()
-    try:
-        rclpy.spin(node)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+    """Console entry point (``ros2 run`` style)."""
+    run_node(NODE_CLASS, args)

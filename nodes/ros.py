@@ -43,5 +43,18 @@ def latched(depth: int = 1):
     return QoSProfile(depth=depth, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-__all__ = ["latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs",
+def run_node(node_class, args=None) -> None:
+    """init, spin one node until shutdown or Ctrl-C, clean up: each node module's ``main``."""
+    rclpy.init(args=args)
+    node = node_class()
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
+__all__ = ["run_node", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs",
            "REAL_ROS"]

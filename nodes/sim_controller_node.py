@@ -4,7 +4,7 @@
 
 from __future__ import annotations
 
-from nodes.ros import Node
+from nodes.ros import Node, run_node
 from robot_bridge.sim_controller import SimControllerProcess
 
 
@@ -28,12 +28,5 @@ NODE_CLASS = SimControllerNode
 
 
 def main(args=None) -> None:
-    from nodes.ros import rclpy
-
-    rclpy.init(args=args)
-    node = SimControllerNode()
-    try:
-        rclpy.spin(node)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+    """Console entry point (``ros2 run`` style)."""
+    run_node(NODE_CLASS, args)

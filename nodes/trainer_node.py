@@ -15,7 +15,7 @@ from pathlib import Path
 from dope_training.export import export_checkpoint
 from dope_training.train import TrainConfig, train
 from nodes.background import BackgroundJob
-from nodes.ros import Node, latched, msgs
+from nodes.ros import Node, latched, msgs, run_node
 
 
 class TrainerNode(Node):
@@ -76,12 +76,5 @@ NODE_CLASS = TrainerNode
 
 
 def main(args=None) -> None:
-    from nodes.ros import rclpy
-
-    rclpy.init(args=args)
-    node = TrainerNode()
-    try:
-        rclpy.spin(node)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+    """Console entry point (``ros2 run`` style)."""
+    run_node(NODE_CLASS, args)

@@ -257,53 +257,28 @@ class SimController:
         c = command.lower()
         if c.startswith("sim "):
             return self._sim_answer(command.split()[1:])
-        if c == "polyscopeversion":
-            return POLYSCOPE_VERSION
-        if c == "version":
-            return ".".join(map(str, CONTROLLER_VERSION))
-        if c == "is in remote control":
-            return "true"
-        if c == "robotmode":
-            return "Robotmode: RUNNING"
-        if c == "safetystatus":
-            return "Safetystatus: PROTECTIVE_STOP" if s.protective_stop else "Safetystatus: NORMAL"
-        if c == "safetymode":
-            return "Safetymode: PROTECTIVE_STOP" if s.protective_stop else "Safetymode: NORMAL"
-        if c == "programstate":
-            return ("PLAYING rtde_control" if s.program_running else "STOPPED <unnamed>")
-        if c == "running":
-            return f"Program running: {str(s.program_running).lower()}"
+        state = "PROTECTIVE_STOP" if s.protective_stop else "NORMAL"
+        answers = {
+            "polyscopeversion": POLYSCOPE_VERSION, "version": ".".join(map(str, CONTROLLER_VERSION)),
+            "is in remote control": "true", "robotmode": "Robotmode: RUNNING", "safetystatus": f"Safetystatus: {state}",
+            "safetymode": f"Safetymode: {state}",
+            "programstate": "PLAYING rtde_control" if s.program_running else "STOPPED <unnamed>",
+            "running": f"Program running: {str(s.program_running).lower()}", "play": "Failed to execute: play",
+            "pause": "Pausing program", "power on": "Powering on", "power off": "Powering off",
+            "brake release": "Brake releasing", "close popup": "closing popup",
+            "close safety popup": "closing safety popup", "get serial number": "20195300000",
+            "get robot model": "UR5", "get loaded program": "No program loaded", "isprogramsaved": "true <unnamed>",
+            "quit": "Disconnected"}
         if c == "stop":
             self._end_program("dashboard stop")
             return "Stopped"
-        if c == "play":
-            return "Failed to execute: play"
-        if c == "pause":
-            return "Pausing program"
-        if c == "power on":
-            return "Powering on"
-        if c == "power off":
-            return "Powering off"
-        if c == "brake release":
-            return "Brake releasing"
         if c == "unlock protective stop":
             with self.lock:
                 s.protective_stop = False
                 self.sim.collision = None
             return "Protective stop releasing"
-        if c in ("close popup", "close safety popup", "clear operational mode"):
-            return {"close popup": "closing popup", "close safety popup": "closing safety popup"}.get(
-                c, "operational mode is no longer controlled by Dashboard Server")
-        if c == "get serial number":
-            return "20195300000"
-        if c == "get robot model":
-            return "UR5"
-        if c == "get loaded program":
-            return "No program loaded"
-        if c == "isprogramsaved":
-            return "true <unnamed>"
-        if c == "quit":
-            return "Disconnected"
+        if c in answers:
+            return answers[c]
         return f"could not understand: '{command}'"
 
     def _serve_script(self, conn: socket.socket) -> None:
