@@ -145,6 +145,9 @@ class EvaluatorNode(Node):
         c["record"] = record
         self.strips.append(self._strip(c))
         self.command(f"sim remove {c['name']}")
+        if status is not None and status["state"] == "failed":  # the cell's operator: arm home, stop cleared
+            self.command("sim home")
+            self.command("unlock protective stop")
         self.get_logger().info(f"evaluator_node: attempt {c['attempt'] + 1}: "
                                f"{'success' if in_basket else 'failure (' + cause + ')'}")
         self.attempt += 1

@@ -5,7 +5,7 @@ States: idle -> planning -> moving -> idle (or failed); each change is published
 (std_msgs/String, JSON: state, attempt, detail). Parameters: ``host``; ``hand_eye`` (T_base_cam, 16 numbers
 row-major); ``basket`` (floor centre x y z, base frame); ``bbox_min``/``bbox_size`` (the object's model
 box, m) and ``symmetry_axis`` (object frame; [] for none); ``execute`` = pick (the whole pick-and-place)
-or pregrasp (stop above the object); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per
+or pregrasp (stop above the object); ``home`` (joints, rad: each attempt starts there); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per
 message on ``attempt``, as evaluator_node sends them; the status carries that attempt's number). Poses
 arriving while it moves are ignored.
 """
@@ -31,7 +31,7 @@ class RobotNode(Node):
             ("host", "127.0.0.1"), ("hand_eye", list(np.eye(4).ravel())), ("basket", [-0.15, -0.45, 0.0]),
             ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
             ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),
-            ("wait_for_attempt", False))}
+            ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]))}
         if p["execute"] not in ("pick", "pregrasp"):
             raise PegasusError(f"robot_node: execute must be pick or pregrasp, got {p['execute']!r}")
         for name in ("hand_eye", "basket"):  # launch arguments arrive as text: "1 0 0 0.2 ..."
@@ -72,7 +72,11 @@ class RobotNode(Node):
         try:
             if self.robot.receive is None:
                 self.robot.connect()
+            elif not self.params["dry_run"] and not self.robot.control.isProgramRunning():
+                self.robot.disconnect()  # the control program ended (e.g. a protective stop was cleared)
+                self.robot.connect()
             self.status("planning")
+            self.robot.move_j(self.params["home"])
             axis = p["symmetry_axis"] if len(p["symmetry_axis"]) == 3 else None
             plan = plan_grasp(T_cam_obj, self.T_base_cam, p["bbox_min"], p["bbox_size"], p["basket"][:2],
                               p["basket"][2] + 0.006, self.robot.tcp_pose(), axis=axis,

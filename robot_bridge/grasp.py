@@ -32,7 +32,7 @@ class GraspParams:
     approach: float = 0.12  # m above the grasp for the pre-grasp
     lift: float = 0.18  # m
     drop_height: float = 0.03  # m above the basket floor for the object's lowest point
-    finger_clearance: float = 0.012  # m: the TCP stays this far above the table
+    finger_clearance: float = 0.022  # m: the TCP stays this far above the table (fingertips reach 15 mm past it)
     stroke: float = 0.14  # m: widest opening of the jaws
     min_margin: float = 0.01  # m: the jaws open at least this much wider than the object
 

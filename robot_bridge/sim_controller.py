@@ -39,7 +39,7 @@ import numpy as np
 from pegasus_gen.errors import PegasusError
 from robot_bridge import rtde_protocol as rp
 from robot_bridge.kinematics import fk, matrix_to_pose, nearest_ik, pose_to_matrix
-from robot_bridge.sim_world import MotionError, RobotSim
+from robot_bridge.sim_world import HOME_Q, MotionError, RobotSim
 
 log = logging.getLogger(__name__)
 
@@ -221,7 +221,7 @@ class SimController:
         """Simulation-only dashboard commands (no UR controller has them), for tests and the sim loop:
         ``sim add NAME URDF x y z qx qy qz qw``, ``sim pose NAME`` (-> x y z qx qy qz qw, base frame),
         ``sim remove NAME``, ``sim basket x y z`` (adds the basket), ``sim in_basket NAME`` (-> true/false),
-        ``sim list`` (-> the object names)."""
+        ``sim list`` (-> the object names), ``sim home`` (the arm back at its home joints, gripper open)."""
         from scipy.spatial.transform import Rotation
 
         sim = self.sim
@@ -248,6 +248,10 @@ class SimController:
                     return str(sim.in_basket(args[0])).lower()
                 if verb == "list":
                     return " ".join(sorted(sim.objects))
+                if verb == "home":  # an operator moving the arm back by hand (teach mode) after a stop
+                    sim.motion, sim.q, sim.qd = None, HOME_Q.copy(), np.zeros(6)
+                    sim.set_gripper(False)
+                    return "arm at home"
         except (IndexError, KeyError, ValueError) as exc:
             return f"sim: error: {exc!r}"
         return f"sim: unknown command {words}"
