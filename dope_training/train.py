@@ -149,7 +149,8 @@ def _device(name: str, local_rank: int) -> torch.device:
     return torch.device("cpu")
 
 
-def _read_losses(path: Path) -> list[dict]:
+def read_losses(path: Path) -> list[dict]:
+    """The rows of a run's loss.csv (step and epoch as int, the rest float); [] when there is none."""
     if not path.is_file():
         return []
     with open(path, newline="") as f:
@@ -266,7 +267,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
         (out / "beliefs").mkdir(parents=True, exist_ok=True)
         config_text = yaml.safe_dump(asdict(cfg), sort_keys=False).encode()
         write_atomic(out / "train_config.yaml", lambda f: f.write(config_text))
-        rows = [r for r in _read_losses(out / "loss.csv") if r["step"] <= step] if state else []
+        rows = [r for r in read_losses(out / "loss.csv") if r["step"] <= step] if state else []
         _write_losses(out / "loss.csv", rows)
         print(f"training DOPE-{cfg.variant} on {len(dataset)} images of {target.name!r} (obj_id {target.obj_id}), "
               f"{cfg.size} px crops, batch {cfg.batch_size} x {world} rank(s), {device.type}"

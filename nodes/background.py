@@ -23,5 +23,24 @@ class BackgroundJob:
         finally:
             self.done = True
 
+    @property
+    def state(self) -> str:
+        return "failed" if self.error else "done" if self.done else "running"
+
+    def announce(self, node, publisher, what: str) -> None:
+        """Once the job has ended, once: publish its result (a path) as a String, or log its error and ask the
+        launch to end."""
+        if not self.done or getattr(self, "_announced", False):
+            return
+        self._announced = True
+        if self.error is None:
+            from nodes.ros import msgs
+
+            publisher.publish(msgs.String(data=str(self.result)))
+            node.get_logger().info(f"{node.get_name()}: {what} ready at {self.result}")
+        else:
+            node.get_logger().error(f"{node.get_name()}: {self.error}")
+            node.shutdown_requested = True
+
     def join(self, timeout: float | None = None) -> None:
         self._thread.join(timeout)

@@ -36,7 +36,6 @@ class GeneratorNode(Node):
         self.progress_pub = self.create_publisher(msgs.String, "generator/progress", 10)
         self.dataset_pub = self.create_publisher(msgs.String, "dataset", latched())
         self.job = BackgroundJob(lambda: generate(self.cfg, resume=resume))
-        self.published = False
         self.create_timer(1.0, self.tick)
 
     def frames_written(self) -> int:
@@ -44,17 +43,10 @@ class GeneratorNode(Node):
         return sum(1 for _ in split.glob("*/rgb/*")) if split.is_dir() else 0
 
     def tick(self) -> None:
-        state = "failed" if self.job.error else "done" if self.job.done else "running"
         self.progress_pub.publish(msgs.String(data=json.dumps(
-            {"frames": self.frames_written(), "planned": self.planned, "state": state, "error": self.job.error})))
-        if self.job.done and not self.published:
-            self.published = True
-            if self.job.error is None:
-                self.dataset_pub.publish(msgs.String(data=str(self.job.result)))
-                self.get_logger().info(f"generator_node: dataset ready at {self.job.result}")
-            else:
-                self.get_logger().error(f"generator_node: {self.job.error}")
-                self.shutdown_requested = True
+            {"frames": self.frames_written(), "planned": self.planned, "state": self.job.state,
+             "error": self.job.error})))
+        self.job.announce(self, self.dataset_pub, "dataset")
 
 
 NODE_CLASS = GeneratorNode

@@ -8,12 +8,11 @@ state) once a second from the run's loss.csv.
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 from dope_training.export import export_checkpoint
-from dope_training.train import TrainConfig, train
+from dope_training.train import TrainConfig, read_losses, train
 from nodes.background import BackgroundJob
 from nodes.ros import Node, latched, msgs, run_node
 
@@ -26,7 +25,6 @@ class TrainerNode(Node):
             ("batch_size", 8), ("size", 0), ("device", "auto"), ("loader_workers", 2))}
         self.params = p
         self.job = None
-        self.published = False
         self.progress_pub = self.create_publisher(msgs.String, "trainer/progress", 10)
         self.model_pub = self.create_publisher(msgs.String, "model", latched())
         self.create_subscription(msgs.String, "dataset", lambda m: self.start(m.data), latched())
@@ -52,24 +50,12 @@ class TrainerNode(Node):
     def tick(self) -> None:
         if self.job is None:
             return
-        rows = []
-        loss_csv = Path(self.params["out"]) / "loss.csv"
-        if loss_csv.is_file():
-            with open(loss_csv, newline="") as f:
-                rows = list(csv.DictReader(f))
+        rows = read_losses(Path(self.params["out"]) / "loss.csv")
         last = rows[-1] if rows else {}
-        state = "failed" if self.job.error else "done" if self.job.done else "running"
         self.progress_pub.publish(msgs.String(data=json.dumps(
-            {"step": int(last.get("step", 0)), "epoch": int(last.get("epoch", 0)),
-             "loss": float(last.get("loss", "nan")), "state": state, "error": self.job.error})))
-        if self.job.done and not self.published:
-            self.published = True
-            if self.job.error is None:
-                self.model_pub.publish(msgs.String(data=str(self.job.result)))
-                self.get_logger().info(f"trainer_node: model ready at {self.job.result}")
-            else:
-                self.get_logger().error(f"trainer_node: {self.job.error}")
-                self.shutdown_requested = True
+            {"step": last.get("step", 0), "epoch": last.get("epoch", 0), "loss": last.get("loss", float("nan")),
+             "state": self.job.state, "error": self.job.error})))
+        self.job.announce(self, self.model_pub, "model")
 
 
 NODE_CLASS = TrainerNode
