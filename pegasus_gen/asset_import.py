@@ -128,7 +128,14 @@ def import_splat(ply: str | os.PathLike, name: str, kind: str, library: AssetLib
     """A trained 3DGS PLY as an asset in ``library``: scaled by ``scale`` to metres, then moved by the
     optional rigid ``transform`` [4, 4] (e.g. to make z up) before the conventions above apply."""
     T = _check_placement(scale, transform)
-    cloud = read_ply(ply).transformed(T, scale=scale)
+    return import_cloud(read_ply(ply).transformed(T, scale=scale), name, kind, library, obj_id, rng, params,
+                        overwrite, **fields)
+
+
+def import_cloud(cloud: SplatCloud, name: str, kind: str, library: AssetLibrary, obj_id: int | None = None,
+                 rng: np.random.Generator | None = None, params: MeshParams = MeshParams(), overwrite: bool = False,
+                 **fields) -> Asset:
+    """A splat cloud already in metres and z up (e.g. from ``pegasus scan``) as an asset in ``library``."""
     return _finish(cloud, None, name, kind, obj_id, library, rng or np.random.default_rng(0), params, overwrite,
                    **fields)
 

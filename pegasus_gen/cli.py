@@ -217,6 +217,35 @@ def cmd_assets_import(args) -> int:
     return 0
 
 
+def cmd_scan(args) -> int:
+    from pegasus_gen.scan import ScanOptions, run_scan
+
+    options = ScanOptions(kind=args.kind, name=args.name, obj_id=args.obj_id, aruco_size=args.aruco_size,
+                          aruco_dict=args.aruco_dict, scale=args.scale,
+                          intrinsics=tuple(args.intrinsics) if args.intrinsics else None, matcher=args.matcher,
+                          masks=args.masks, preset=args.preset, train_size=args.train_size, device=args.device,
+                          seed=args.seed, overwrite=args.overwrite)
+    report = run_scan(args.images, args.work or Path("out/scan") / args.name, options, _library(args))
+    sfm, scale, training = report["sfm"], report["scale"], report["training"]
+    print(f"registered {sfm['registered']}/{sfm['images']} photos, scale {scale['scale_m_per_unit']:.5g} m/unit, "
+          f"held-out PSNR {training.get('psnr_test', float('nan')):.2f} dB, {training['n_splats']:,} splats, "
+          f"{report['timings_s']['total']:.0f} s")
+    return 0
+
+
+def cmd_scan_capture(args) -> int:
+    from pegasus_gen.files import read_json
+    from pegasus_gen.scan_capture import write_capture
+
+    images = write_capture(args.out, views=args.views, width=args.size[0], height=args.size[1], seed=args.seed,
+                           flipped=args.flipped, markers=not args.no_markers)
+    K = np.array(read_json(Path(args.out) / "truth.json")["K"])
+    print(f"wrote {args.views} photos to {images} (masks in {Path(args.out) / 'masks'}, truth in truth.json); scan "
+          f"them with:\n  pegasus scan {images} --kind object --obj-id 20 --name scanned_cup --aruco-size 0.05 "
+          f"--masks {Path(args.out) / 'masks'} --intrinsics {K[0, 0]:.3f} {K[1, 1]:.3f} {K[0, 2]:.1f} {K[1, 2]:.1f}")
+    return 0
+
+
 def cmd_train(args) -> int:
     from dope_training.train import TrainConfig, train
 
@@ -503,6 +532,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--library", help="asset library (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
     p.add_argument("--host", default="127.0.0.1", help="loopback address for the simulated controller")
     p.set_defaults(func=cmd_demo_loop)
+
+    p = sub.add_parser("scan", help="photos -> metric, z-up splat asset (SfM, ArUco scale, plane alignment, 3DGS)")
+    p.add_argument("images", help="folder of photos")
+    p.add_argument("--kind", choices=("object", "environment"), required=True)
+    p.add_argument("--name", required=True, help="asset name")
+    p.add_argument("--obj-id", type=int, help="BOP object id (objects)")
+    p.add_argument("--aruco-size", type=float, help="printed ArUco marker edge length, metres")
+    p.add_argument("--aruco-dict", default="DICT_4X4_50", help="cv2.aruco dictionary of the markers")
+    p.add_argument("--scale", type=float, help="metres per reconstruction unit, instead of markers")
+    p.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
+                   help="calibrated pinhole camera (OpenCV pixels); default: estimated by SfM")
+    p.add_argument("--matcher", choices=("exhaustive", "sequential"), default="exhaustive",
+                   help="exhaustive for up to ~150 photos, sequential for video-like sets")
+    p.add_argument("--masks", help="folder of object masks named like the photos (background removal)")
+    p.add_argument("--preset", choices=("cpu-small", "7k", "30k"), default="cpu-small",
+                   help="splat training length: cpu-small (minutes on a CPU), 7k or 30k iterations (GPU)")
+    p.add_argument("--train-size", type=int, default=160, help="longest photo side for splat training, pixels")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--work", help="work folder for SfM, report and previews (default out/scan/NAME)")
+    p.add_argument("--library", help="asset library (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing asset of that name")
+    p.set_defaults(func=cmd_scan)
+
+    p = sub.add_parser("scan-capture", help="render a synthetic scan capture (cup on an ArUco board) to try pegasus scan")
+    p.add_argument("out", help="output folder")
+    p.add_argument("--views", type=int, default=36)
+    p.add_argument("--size", type=int, nargs=2, default=(480, 360), metavar=("W", "H"))
+    p.add_argument("--flipped", action="store_true", help="the cup upside down (second half of a two-part scan)")
+    p.add_argument("--no-markers", action="store_true", help="a board without ArUco markers")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_scan_capture)
 
     assets = sub.add_parser("assets", help="asset library: list, show, import")
     assets.add_argument("--library", help="library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
