@@ -223,7 +223,8 @@ def cmd_scan(args) -> int:
     options = ScanOptions(kind=args.kind, name=args.name, obj_id=args.obj_id, aruco_size=args.aruco_size,
                           aruco_dict=args.aruco_dict, scale=args.scale,
                           intrinsics=tuple(args.intrinsics) if args.intrinsics else None, matcher=args.matcher,
-                          masks=args.masks, preset=args.preset, train_size=args.train_size, device=args.device,
+                          masks=args.masks, second_images=args.second_images, second_masks=args.second_masks,
+                          preset=args.preset, train_size=args.train_size, device=args.device,
                           seed=args.seed, overwrite=args.overwrite)
     report = run_scan(args.images, args.work or Path("out/scan") / args.name, options, _library(args))
     sfm, scale, training = report["sfm"], report["scale"], report["training"]
@@ -546,6 +547,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--matcher", choices=("exhaustive", "sequential"), default="exhaustive",
                    help="exhaustive for up to ~150 photos, sequential for video-like sets")
     p.add_argument("--masks", help="folder of object masks named like the photos (background removal)")
+    p.add_argument("--second-images", help="photos of the object turned over (two-part object scan; needs masks)")
+    p.add_argument("--second-masks", help="object masks of the second-half photos")
     p.add_argument("--preset", choices=("cpu-small", "7k", "30k"), default="cpu-small",
                    help="splat training length: cpu-small (minutes on a CPU), 7k or 30k iterations (GPU)")
     p.add_argument("--train-size", type=int, default=160, help="longest photo side for splat training, pixels")

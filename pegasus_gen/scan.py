@@ -14,6 +14,7 @@ Everything except the asset goes to the work folder: ``sfm/`` (COLMAP database a
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -50,6 +51,8 @@ class ScanOptions:
     intrinsics: tuple[float, float, float, float] | None = None  # fx, fy, cx, cy (OpenCV) if calibrated
     matcher: str = "exhaustive"
     masks: str | None = None  # folder of object masks named like the photos (non-zero = object)
+    second_images: str | None = None  # the object turned over (second half of an object scan)
+    second_masks: str | None = None  # its masks (both halves need masks: only the object moved)
     preset: str = "cpu-small"  # splat training preset
     train_size: int = 160  # longest image side for splat training
     holdout_every: int = 8  # every n-th registered photo is held out for PSNR
@@ -74,10 +77,17 @@ def _check_options(options: ScanOptions, image_dir: Path, names: list[str], libr
                            "(metres per reconstruction unit)")
     if options.scale is not None and not options.scale > 0:
         raise PegasusError(f"--scale must be positive, got {options.scale}")
-    if options.masks is not None:
-        missing = [n for n in names if _mask_path(Path(options.masks), n) is None]
+    if options.second_images is not None and (options.kind != "object" or options.masks is None
+                                              or options.second_masks is None):
+        raise PegasusError("a two-part object scan (--second-images) needs --masks and --second-masks: the "
+                           "object moved against the board between the halves, so only its pixels can be matched")
+    for folder, photos in ((options.masks, names), (options.second_masks, None)):
+        if folder is None:
+            continue
+        photos = photos if photos is not None else sfm.list_images(options.second_images)
+        missing = [n for n in photos if _mask_path(Path(folder), n) is None]
         if missing:
-            raise PegasusError(f"{options.masks}: no mask for {len(missing)} photo(s), e.g. {missing[0]} "
+            raise PegasusError(f"{folder}: no mask for {len(missing)} photo(s), e.g. {missing[0]} "
                                "(masks are named like the photos, .png allowed)")
 
 
@@ -202,12 +212,77 @@ def _preview(path: Path, cloud: SplatCloud, views, device: str, count: int = 4) 
         write_image(path, np.concatenate(columns, axis=1))
 
 
+def fit_similarity(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares similarity S [4, 4] with dst ~ S src (Umeyama) for corresponding points [N, 3], N >= 3."""
+    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - ms, dst - md
+    U, D, Vt = np.linalg.svd(b.T @ a / len(src))
+    flip = np.diag([1.0, 1.0, -1.0 if np.linalg.det(U) * np.linalg.det(Vt) < 0 else 1.0])
+    R = U @ flip @ Vt
+    c = float(np.trace(np.diag(D) @ flip) / a.var(axis=0).sum())
+    S = np.eye(4)
+    S[:3, :3] = c * R
+    S[:3, 3] = md - c * R @ ms
+    return S
+
+
+def _link(source: Path, target: Path) -> None:
+    try:
+        target.symlink_to(source.resolve())
+    except OSError:  # file systems without symlinks
+        shutil.copyfile(source, target)
+
+
+def register_second_half(rec: sfm.SfmResult, S_frame_rec: np.ndarray, options: ScanOptions, work_dir: Path
+                         ) -> tuple[dict, np.ndarray, np.ndarray, dict]:
+    """Place the photos of the turned-over object (``options.second_images``) in the first half's frame.
+
+    Both halves go through one SfM with features only inside the object masks (the object is the one
+    rigid thing both halves share); the first-half photos registered in both reconstructions give the
+    similarity between them (camera centres, least squares). Returns (name -> (pycolmap camera,
+    T_cam_frame [4, 4]) for the registered second-half photos, object points [N, 3] in the frame, their colours [N, 3], report).
+    """
+    first_dir, second_dir = rec.image_dir, Path(options.second_images)
+    second_names = sfm.list_images(second_dir)
+    combined = work_dir / "halves"
+    if combined.exists():
+        shutil.rmtree(combined)
+    (combined / "images").mkdir(parents=True)
+    (combined / "masks").mkdir()
+    for prefix, folder, mask_folder, names in (("first_", first_dir, options.masks, rec.input_names),
+                                               ("second_", second_dir, options.second_masks, second_names)):
+        for name in names:
+            _link(folder / name, combined / "images" / (prefix + name))
+            _link(_mask_path(Path(mask_folder), name), combined / "masks" / (prefix + name + ".png"))
+    both = sfm.reconstruct(combined / "images", work_dir / "sfm_halves", matcher=options.matcher,
+                           intrinsics=options.intrinsics, mask_dir=combined / "masks", seed=options.seed, log=_log)
+    registered = set(both.registered)
+    shared = [n for n in rec.registered if "first_" + n in registered]
+    placed = [n for n in second_names if "second_" + n in registered]
+    report = {"shared_first_half_photos": len(shared), "second_half_photos": len(second_names),
+              "second_half_registered": len(placed), "sfm": both.report()}
+    if len(shared) < 3 or len(placed) < 3:
+        raise PegasusError(f"{second_dir}: the turned-over half could not be joined to the first: "
+                           f"{len(placed)} of {len(second_names)} of its photos and {len(shared)} first-half photos "
+                           "were placed by object features alone. Photograph the object larger in the frame, "
+                           "with views of its sides in both halves")
+
+    def centre(T):
+        return -T[:3, :3].T @ T[:3, 3]
+
+    src = np.array([centre(both.T_cam_world("first_" + n)) for n in shared])
+    dst = np.array([centre(camera_in_frame(rec.T_cam_world(n), S_frame_rec)) for n in shared])
+    S = fit_similarity(src, dst)
+    report["shared_camera_residual_m"] = float(np.abs(src @ S[:3, :3].T + S[:3, 3] - dst).max())
+    cameras = {n: (both.camera("second_" + n), camera_in_frame(both.T_cam_world("second_" + n), S)) for n in placed}
+    points, colours = both.points()
+    return cameras, points @ S[:3, :3].T + S[:3, 3], colours, report
+
+
 def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
              library: AssetLibrary | None = None) -> dict:
     """Photos in ``image_dir`` -> asset ``options.name`` in ``library``; returns the scan report (also
     written to ``work_dir``/scan_report.json). Raises PegasusError with a clear message on bad input."""
-    from pegasus_gen.splat_training import SplatTrainConfig, TrainView, init_from_points, train_splats
-
     image_dir, work_dir = Path(image_dir), Path(work_dir)
     library = library or AssetLibrary()
     names = sfm.list_images(image_dir)
@@ -258,26 +333,42 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
     T_align, report["alignment"] = align_to_support_plane(points * scale, centres * scale, options.kind, rng)
     S = T_align @ similarity_matrix(scale, np.eye(4))  # reconstruction -> asset frame
     report["alignment"]["S_frame_reconstruction"] = S.tolist()
+    report["cameras_T_cam_frame"] = {n: camera_in_frame(rec.T_cam_world(n), S).tolist() for n in registered}
 
-    _log("[4/5] Gaussian-splat training")
+    aligned = points @ S[:3, :3].T + S[:3, 3]
+    masks = Path(options.masks) if options.masks is not None else None
+    # (photo, its mask or None, pycolmap camera, T_cam_frame) for every registered photo
+    photos = [(image_dir / n, masks and _mask_path(masks, n), rec.camera(n), report["cameras_T_cam_frame"][n])
+              for n in registered]
+    if options.second_images is not None:
+        _log("      joining the turned-over half (object features only)")
+        cameras, points_b, colours_b, report["second_half"] = register_second_half(rec, S, options, work_dir)
+        second, second_masks = Path(options.second_images), Path(options.second_masks)
+        photos += [(second / n, _mask_path(second_masks, n), cam, T) for n, (cam, T) in cameras.items()]
+        report["cameras_T_cam_frame"].update({f"second/{n}": T.tolist() for n, (_, T) in cameras.items()})
+        aligned, colours = np.concatenate([aligned, points_b]), np.concatenate([colours, colours_b])
+        _log(f"      placed {len(cameras)} of its photos (shared cameras agree within "
+             f"{1000 * report['second_half']['shared_camera_residual_m']:.1f} mm)")
+
+    _log(f"[4/5] Gaussian-splat training on {len(photos)} photos")
+    from pegasus_gen.splat_training import SplatTrainConfig, TrainView, init_from_points, train_splats
+
     t = time.perf_counter()
     views = []
-    for name in registered:
-        K, dist = camera_model(rec.camera(name))
-        image, K_train = training_image(image_dir / name, K, dist, options.train_size)
+    for path, mask_path, camera, T in photos:
+        K, dist = camera_model(camera)
+        image, K_train = training_image(path, K, dist, options.train_size)
         mask = None
-        if options.masks is not None:
-            mask, _ = training_image(_mask_path(Path(options.masks), name), K, dist, options.train_size,
-                                     interpolation=cv2.INTER_LINEAR)
+        if mask_path is not None:
+            mask, _ = training_image(mask_path, K, dist, options.train_size, interpolation=cv2.INTER_LINEAR)
             mask = mask if mask.ndim == 2 else mask[..., 0]
-        views.append(TrainView(image=image, K=K_train, T_cam_world=camera_in_frame(rec.T_cam_world(name), S),
-                               mask=mask, name=name))
+        views.append(TrainView(image=image, K=K_train, T_cam_world=np.asarray(T, np.float64), mask=mask,
+                               name=path.name))
     held_out = views[options.holdout_every - 1::options.holdout_every] if len(views) >= 2 * options.holdout_every \
         else []
     train_views = [v for v in views if all(v is not h for h in held_out)]
-    aligned = points @ S[:3, :3].T + S[:3, 3]
     keep = np.ones(len(aligned), bool)
-    if options.kind == "object" and options.masks is not None:  # the photos show the object alone
+    if options.kind == "object" and masks is not None:  # the photos show the object alone
         a = report["alignment"]
         keep = object_crop(aligned, a["object_radius"], a["object_height"])
     cloud, train_report = train_splats(init_from_points(aligned[keep], colours[keep]), train_views, held_out,

@@ -103,7 +103,7 @@ def cup_splats(rng: np.random.Generator) -> tuple[SplatCloud, float]:
 
 
 def hemisphere_poses(count: int, radius: float, target, rng: np.random.Generator,
-                     elevations_deg=(30.0, 70.0)) -> list[np.ndarray]:
+                     elevations_deg=(25.0, 60.0)) -> list[np.ndarray]:
     """``count`` T_cam_world [4, 4] on rings of a hemisphere (elevation between the given bounds),
     looking at ``target`` [3] with a little jitter, ordered ring by ring (a walk around the object)."""
     rings = max(1, int(round(np.sqrt(count / 6))))
@@ -122,12 +122,12 @@ def hemisphere_poses(count: int, radius: float, target, rng: np.random.Generator
 
 
 def write_capture(out: str | os.PathLike, views: int = 36, width: int = 480, height: int = 360,
-                  seed: int = 0, flipped: bool = False, markers: bool = True, fov_x_deg: float = 60.0,
-                  progress: bool = True) -> Path:
+                  seed: int = 0, flipped: bool = False, markers: bool = True, distance: float = 0.55,
+                  fov_x_deg: float = 60.0, progress: bool = True) -> Path:
     """Render a capture into ``out``: images/NNNN.png, masks/NNNN.png (the cup's pixels) and truth.json.
 
     flipped: the cup lies upside down (the second half of a two-part object scan); markers: print the
-    ArUco markers on the board.
+    ArUco markers on the board; distance: mean camera distance from the cup (m).
     Returns the images folder.
     """
     if views < 1:
@@ -142,7 +142,7 @@ def write_capture(out: str | os.PathLike, views: int = 36, width: int = 480, hei
     cup_world = cup.transformed(T_world_cup)
     fx = width / 2 / np.tan(np.radians(fov_x_deg) / 2)
     K = np.array([[fx, 0, (width - 1) / 2], [0, fx, (height - 1) / 2], [0, 0, 1]])
-    poses = hemisphere_poses(views, 0.55, (0.0, 0.0, cup_height / 3), rng)
+    poses = hemisphere_poses(views, distance, (0.0, 0.0, cup_height / 3), rng)
     out = Path(out)
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "masks").mkdir(parents=True, exist_ok=True)
