@@ -229,7 +229,7 @@ def cmd_scan(args) -> int:
     report = run_scan(args.images, args.work or Path("out/scan") / args.name, options, _library(args))
     sfm, scale, training = report["sfm"], report["scale"], report["training"]
     print(f"registered {sfm['registered']}/{sfm['images']} photos, scale {scale['scale_m_per_unit']:.5g} m/unit, "
-          f"held-out PSNR {training.get('psnr_test', float('nan')):.2f} dB, {training['n_splats']:,} splats, "
+          f"held-out PSNR {training.get('psnr_test', float('nan')):.2f} dB, {training['n_splats_final']:,} splats, "
           f"{report['timings_s']['total']:.0f} s")
     return 0
 
@@ -551,7 +551,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--second-masks", help="object masks of the second-half photos")
     p.add_argument("--preset", choices=("cpu-small", "7k", "30k"), default="cpu-small",
                    help="splat training length: cpu-small (minutes on a CPU), 7k or 30k iterations (GPU)")
-    p.add_argument("--train-size", type=int, default=160, help="longest photo side for splat training, pixels")
+    p.add_argument("--train-size", type=int,
+                   help="longest photo side for splat training, pixels (default 160 for cpu-small, else 1600)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--work", help="work folder for SfM, report and previews (default out/scan/NAME)")
     p.add_argument("--library", help="asset library (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")

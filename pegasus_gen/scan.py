@@ -7,8 +7,8 @@ on the posed photos (:mod:`pegasus_gen.splat_training`) -> crop to the object ->
 :func:`pegasus_gen.asset_import.import_cloud`: collision mesh, URDF, manifest).
 
 Everything except the asset goes to the work folder: ``sfm/`` (COLMAP database and model),
-``splats_aligned.ply`` (the trained scene, metric z-up), ``scan_report.json`` and ``preview.png``
-(held-out photos beside their renders). The asset is written last, so a failure leaves no asset.
+``splats_aligned.ply`` (the trained scene, metric z-up), ``scan_report.json``, ``training_loss.png`` and
+``preview.png`` (held-out photos above their renders). The asset is written last, so a failure leaves no asset.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from pegasus_gen.asset_import import import_cloud, support_plane_alignment
 from pegasus_gen.assets import AssetLibrary
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.images import rgb_to_uint8, write_image
+from pegasus_gen.plots import line_chart
 from pegasus_gen.splat_ply import write_ply
 from pegasus_gen.splats import SplatCloud
 
@@ -36,6 +37,7 @@ OBJECT_MIN_HEIGHT = 0.004  # m: SfM points this far above the support plane are 
 OBJECT_CLUSTER_EPS = 0.02  # m: DBSCAN neighbourhood joining object points into one cluster
 OBJECT_MARGIN = 0.01  # m added around the object's extent when cropping the trained splats
 CROP_MIN_HEIGHT = 0.002  # m: trained splats below this height belong to the support plane
+TRAIN_SIZE = {"cpu-small": 160, "7k": 1600, "30k": 1600}  # default longest photo side for training, px
 
 
 @dataclass
@@ -54,7 +56,7 @@ class ScanOptions:
     second_images: str | None = None  # the object turned over (second half of an object scan)
     second_masks: str | None = None  # its masks (both halves need masks: only the object moved)
     preset: str = "cpu-small"  # splat training preset
-    train_size: int = 160  # longest image side for splat training
+    train_size: int | None = None  # longest image side for splat training (None: by preset)
     holdout_every: int = 8  # every n-th registered photo is held out for PSNR
     device: str = "auto"
     seed: int = 0
@@ -199,15 +201,21 @@ def object_crop(points: np.ndarray, radius: float, height: float) -> np.ndarray:
         (r < radius + OBJECT_MARGIN)
 
 
-def _preview(path: Path, cloud: SplatCloud, views, device: str, count: int = 4) -> None:
-    """Held-out photos (top) above renders of the trained splats from the same cameras (bottom)."""
+def _preview(path: Path, cloud: SplatCloud, views, device: str, count: int = 4, size: int = 320) -> None:
+    """Held-out photos (top) above renders of the trained splats from the same cameras (bottom), each
+    shown with its longest side ``size`` pixels."""
     from pegasus_gen.render import render
 
     columns = []
     for view in views[:count]:
         h, w = view.image.shape[:2]
-        out = render(cloud, view.K, view.T_cam_world, w, h, device=device)
-        columns.append(np.concatenate([rgb_to_uint8(view.image), rgb_to_uint8(out.rgb)], axis=0))
+        f = size / max(h, w)
+        W, H = round(w * f), round(h * f)
+        K = np.diag([W / w, H / h, 1.0]) @ view.K
+        K[:2, 2] = (view.K[:2, 2] + 0.5) * [W / w, H / h] - 0.5
+        out = render(cloud, K, view.T_cam_world, W, H, device=device)
+        photo = cv2.resize(rgb_to_uint8(view.image), (W, H), interpolation=cv2.INTER_LINEAR)
+        columns.append(np.concatenate([photo, rgb_to_uint8(out.rgb)], axis=0))
     if columns:
         write_image(path, np.concatenate(columns, axis=1))
 
@@ -354,13 +362,14 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
     from pegasus_gen.splat_training import SplatTrainConfig, TrainView, init_from_points, train_splats
 
     t = time.perf_counter()
+    train_size = options.train_size or TRAIN_SIZE[options.preset]
     views = []
     for path, mask_path, camera, T in photos:
         K, dist = camera_model(camera)
-        image, K_train = training_image(path, K, dist, options.train_size)
+        image, K_train = training_image(path, K, dist, train_size)
         mask = None
         if mask_path is not None:
-            mask, _ = training_image(mask_path, K, dist, options.train_size, interpolation=cv2.INTER_LINEAR)
+            mask, _ = training_image(mask_path, K, dist, train_size, interpolation=cv2.INTER_LINEAR)
             mask = mask if mask.ndim == 2 else mask[..., 0]
         views.append(TrainView(image=image, K=K_train, T_cam_world=np.asarray(T, np.float64), mask=mask,
                                name=path.name))
@@ -372,7 +381,11 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
         a = report["alignment"]
         keep = object_crop(aligned, a["object_radius"], a["object_height"])
     cloud, train_report = train_splats(init_from_points(aligned[keep], colours[keep]), train_views, held_out,
-                                       SplatTrainConfig.from_preset(options.preset), device=options.device)
+                                       SplatTrainConfig.preset(options.preset), device=options.device)
+    losses = np.asarray(train_report.pop("loss_history"))
+    write_image(work_dir / "training_loss.png", line_chart(
+        {"L1 + SSIM loss": (np.arange(1, len(losses) + 1), losses)}, "splat training", "iteration", "loss",
+        log_y=True))
     report["training"] = train_report
     report["timings_s"]["training"] = time.perf_counter() - t
     write_ply(work_dir / "splats_aligned.ply", cloud)
@@ -382,7 +395,6 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
     if options.kind == "object":
         a = report["alignment"]
         cloud = cloud.select(object_crop(cloud.means, a["object_radius"], a["object_height"]))
-        cloud = cloud.with_label(options.obj_id)
         if len(cloud) < 50:
             raise PegasusError(f"only {len(cloud)} trained splats lie on the object: the scan is too sparse")
     geometry = {"source": "pegasus scan", "images": len(names), "registered": len(registered),

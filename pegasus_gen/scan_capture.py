@@ -95,9 +95,14 @@ def board_splats(rng: np.random.Generator, markers: bool = True) -> SplatCloud:
 
 def cup_splats(rng: np.random.Generator) -> tuple[SplatCloud, float]:
     """The red demo noodle cup in its object frame (bounding-box centre at the origin), label 1;
-    returns (splats, height in metres)."""
+    returns (splats, height in metres). Its printed label repeats twice around the cup, which would make
+    the two sides indistinguishable to feature matching: scattered stickers tell them apart."""
     name, _, (rb, rt, h), (bg, band, text), brand, flavour = demo_assets.CUPS[0]
     label = demo_assets.label_texture(bg, band, text, brand, flavour, rng)
+    for _ in range(300):
+        colour = tuple(int(c) for c in rng.integers(0, 256, 3))
+        x, y = int(rng.integers(0, label.shape[1])), int(rng.integers(0, label.shape[0]))
+        cv2.circle(label, (x, y), int(rng.integers(10, 35)), colour, -1, cv2.LINE_AA)
     lid = demo_assets.lid_texture(bg, band, text, brand)
     return demo_assets.frustum_splats(rb, rt, h, label, lid, (0.95, 0.95, 0.93), rng).with_label(1), h
 
