@@ -450,7 +450,8 @@ def train_splats(init: SplatCloud, train_views: Sequence[TrainView], test_views:
         loss = (1 - config.ssim_weight) * (out.rgb - target).abs().mean()
         if config.ssim_weight > 0:
             loss = loss + config.ssim_weight * (1.0 - ssim(out.rgb, target))
-        loss.backward()
+        if loss.requires_grad:  # False when no splat reaches this view: nothing to learn from it
+            loss.backward()
         with torch.no_grad():
             if step < config.densify_until:
                 g = out.means2d_grad()

@@ -281,6 +281,15 @@ def test_training_learns_held_out_views(box_scene):
     assert np.mean(rendered) == pytest.approx(report["psnr_test"], abs=0.05)
 
 
+def test_a_view_that_sees_no_splat_is_harmless(box_scene):
+    gt, init = box_scene
+    views = _orbit_views(gt, 32, 24, [0, 90], [30, 30], masks=False)
+    away = TrainView(views[0].image, views[0].K, look_at([0.0, 0.0, 0.35], [0.0, 0.0, 1.0]), name="away")
+    config = SplatTrainConfig.preset("cpu-small", iterations=6)
+    cloud, report = train_splats(init, [views[0], away, views[1]], [], config, device="cpu", progress=False)
+    assert len(report["loss_history"]) == 6 and np.isfinite(cloud.means).all()
+
+
 def test_masked_training_makes_the_outside_transparent(box_scene):
     gt, init = box_scene
     rng = np.random.default_rng(1)
