@@ -224,7 +224,7 @@ def cmd_scan(args) -> int:
                           aruco_dict=args.aruco_dict, scale=args.scale,
                           intrinsics=tuple(args.intrinsics) if args.intrinsics else None, matcher=args.matcher,
                           masks=args.masks, second_images=args.second_images, second_masks=args.second_masks,
-                          preset=args.preset, train_size=args.train_size, device=args.device,
+                          preset=args.preset, iterations=args.iterations, train_size=args.train_size, device=args.device,
                           seed=args.seed, overwrite=args.overwrite)
     report = run_scan(args.images, args.work or Path("out/scan") / args.name, options, _library(args))
     sfm, scale, training = report["sfm"], report["scale"], report["training"]
@@ -551,6 +551,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--second-masks", help="object masks of the second-half photos")
     p.add_argument("--preset", choices=("cpu-small", "7k", "30k"), default="cpu-small",
                    help="splat training length: cpu-small (minutes on a CPU), 7k or 30k iterations (GPU)")
+    p.add_argument("--iterations", type=int, help="training steps instead of the preset's (its schedule is kept)")
     p.add_argument("--train-size", type=int,
                    help="longest photo side for splat training, pixels (default 160 for cpu-small, else 1600)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")

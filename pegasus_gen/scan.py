@@ -56,6 +56,7 @@ class ScanOptions:
     second_images: str | None = None  # the object turned over (second half of an object scan)
     second_masks: str | None = None  # its masks (both halves need masks: only the object moved)
     preset: str = "cpu-small"  # splat training preset
+    iterations: int | None = None  # overrides the preset's length (its schedule is kept)
     train_size: int | None = None  # longest image side for splat training (None: by preset)
     holdout_every: int = 8  # every n-th registered photo is held out for PSNR
     device: str = "auto"
@@ -287,6 +288,13 @@ def register_second_half(rec: sfm.SfmResult, S_frame_rec: np.ndarray, options: S
     return cameras, points @ S[:3, :3].T + S[:3, 3], colours, report
 
 
+def _train_config(options: ScanOptions):
+    from pegasus_gen.splat_training import SplatTrainConfig
+
+    config = SplatTrainConfig.preset(options.preset)
+    return config if options.iterations is None else config.model_copy(update={"iterations": options.iterations})
+
+
 def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
              library: AssetLibrary | None = None) -> dict:
     """Photos in ``image_dir`` -> asset ``options.name`` in ``library``; returns the scan report (also
@@ -359,7 +367,7 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
              f"{1000 * report['second_half']['shared_camera_residual_m']:.1f} mm)")
 
     _log(f"[4/5] Gaussian-splat training on {len(photos)} photos")
-    from pegasus_gen.splat_training import SplatTrainConfig, TrainView, init_from_points, train_splats
+    from pegasus_gen.splat_training import TrainView, init_from_points, train_splats
 
     t = time.perf_counter()
     train_size = options.train_size or TRAIN_SIZE[options.preset]
@@ -381,7 +389,7 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
         a = report["alignment"]
         keep = object_crop(aligned, a["object_radius"], a["object_height"])
     cloud, train_report = train_splats(init_from_points(aligned[keep], colours[keep]), train_views, held_out,
-                                       SplatTrainConfig.preset(options.preset), device=options.device)
+                                       _train_config(options), device=options.device)
     losses = np.asarray(train_report.pop("loss_history"))
     write_image(work_dir / "training_loss.png", line_chart(
         {"L1 + SSIM loss": (np.arange(1, len(losses) + 1), losses)}, "splat training", "iteration", "loss",

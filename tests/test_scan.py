@@ -166,3 +166,35 @@ def test_too_few_or_unrelated_photos_fail_clearly_without_an_asset(tmp_path, cap
     assert main(["scan", str(few), "--work", str(tmp_path / "w2"), *args]) == 2
     assert "at least 3" in capsys.readouterr().err
     assert not library.exists() or not any(library.iterdir())
+
+
+def test_environment_scan_is_level_and_metric(tmp_path):
+    """The board scanned as an environment (no masks, estimated camera): level at z = 0, board-sized."""
+    write_capture(tmp_path / "cap", views=20, width=400, height=300, seed=3, progress=False)
+    library = AssetLibrary(tmp_path / "lib")
+    report = run_scan(tmp_path / "cap" / "images", tmp_path / "work",
+                      ScanOptions(kind="environment", name="board", aruco_size=0.05, train_size=64, iterations=150,
+                                  device="cpu"),
+                      library)
+    assert report["sfm"]["registered_fraction"] >= 0.9
+    env = library.get("board")
+    xy, z = env.splats.means[:, :2], env.splats.means[:, 2]
+    board = (np.abs(xy) < 0.2).all(axis=1) & (np.linalg.norm(xy - np.median(xy, axis=0), axis=1) > 0.08)
+    assert np.mean(np.abs(z) < 0.005) > 0.5  # most splats lie on the board, at z = 0
+    flat = env.splats.means[board & (np.abs(z) < 0.01)]
+    normal = np.linalg.svd(flat - flat.mean(axis=0), full_matrices=False)[2][2]
+    assert np.degrees(np.arccos(abs(normal[2]))) < 1.0 and abs(flat[:, 2].mean()) < 0.002, "board not level at z = 0"
+    region = env.manifest.drop_region  # inset from the 0.5 m board's inliers (2-98th percentile, 10% margin)
+    for extent in (region.x_max - region.x_min, region.y_max - region.y_min):
+        assert 0.3 < extent < 0.45, extent
+    assert (tmp_path / "work" / "preview.png").is_file() and (tmp_path / "work" / "training_loss.png").is_file()
+
+
+def test_scan_capture_command_writes_photos_masks_and_truth(tmp_path, capsys):
+    assert main(["scan-capture", str(tmp_path / "c"), "--views", "2", "--size", "80", "60"]) == 0
+    assert sorted(p.name for p in (tmp_path / "c" / "images").iterdir()) == ["0000.png", "0001.png"]
+    mask = cv2.imread(str(tmp_path / "c" / "masks" / "0000.png"), cv2.IMREAD_GRAYSCALE)
+    assert mask.shape == (60, 80) and 0 < (mask > 0).mean() < 0.5  # the cup, not the board
+    truth = json.loads((tmp_path / "c" / "truth.json").read_text())
+    assert set(truth["images"]) == {"0000.png", "0001.png"}
+    assert "pegasus scan" in capsys.readouterr().out
