@@ -28,6 +28,16 @@ TILE = 16
 PROJECT_CHUNK = 4096  # splats per parallel work item in project()
 
 
+@numba.njit(cache=True)
+def frustum_limits(width, height, fx, fy, cx, cy):
+    """(x_neg, x_pos, y_neg, y_pos): bounds of x/z and y/z used in the EWA Jacobian. gsplat clamps the
+    projected direction to the image frustum widened by 30% (its pixel centres sit at +0.5)."""
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    return ((cx + 0.5) / fx + 0.3 * tan_fovx, (width - cx - 0.5) / fx + 0.3 * tan_fovx,
+            (cy + 0.5) / fy + 0.3 * tan_fovy, (height - cy - 0.5) / fy + 0.3 * tan_fovy)
+
+
 @numba.njit(parallel=True, cache=True)
 def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, fy, cx, cy,
             width, height, near, far, eps2d, valid, mean2d, conic, depth, box, rgb, log_opacity):
@@ -41,13 +51,7 @@ def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, 
     """
     n = means.shape[0]
     k = sh.shape[1]
-    # gsplat clamps the projected direction to the frustum widened by 30% (its pixel centres sit at +0.5).
-    tan_fovx = 0.5 * width / fx
-    tan_fovy = 0.5 * height / fy
-    lim_x_pos = (width - cx - 0.5) / fx + 0.3 * tan_fovx
-    lim_x_neg = (cx + 0.5) / fx + 0.3 * tan_fovx
-    lim_y_pos = (height - cy - 0.5) / fy + 0.3 * tan_fovy
-    lim_y_neg = (cy + 0.5) / fy + 0.3 * tan_fovy
+    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, fx, fy, cx, cy)
     log_alpha_thr = math.log(ALPHA_THRESHOLD)
     n_chunks = (n + PROJECT_CHUNK - 1) // PROJECT_CHUNK
     for chunk in numba.prange(n_chunks):

@@ -35,15 +35,13 @@ import torch
 from torch.utils.checkpoint import checkpoint
 
 from pegasus_gen import sh as shlib
+# the forward math's constants are the numba renderer's (alpha threshold and clamp, early termination,
+# pixel-box extent, frustum clamp, near plane, low-pass)
+from pegasus_gen.rasterizer_cpu import ALPHA_MAX, ALPHA_THRESHOLD, EXTEND_MAX, T_MIN, frustum_limits
+from pegasus_gen.render import EPS2D, NEAR_PLANE
 
-ALPHA_THRESHOLD = 1.0 / 255.0  # contributions below this are skipped
-ALPHA_MAX = 0.999  # per-splat alpha clamp (gsplat)
-T_MIN = 1e-4  # a pixel stops before its transmittance would fall to this
-EXTEND_MAX = 3.33  # pixel-box half size in standard deviations, at most
 TILE = 8  # pixels per tile side (8 beat 16 on CPU: less dense work per tile)
 SPLAT_CHUNK = 1024  # splats blended per dense [pixels x splats] block
-NEAR_PLANE = 0.01  # metres
-EPS2D = 0.3  # pixels^2
 
 
 @dataclass
@@ -153,14 +151,10 @@ def project(means, quats_wxyz, log_scales, opacity_logits, sh, K, T_cam_world, w
     valid = (z > near) & (z < far)
     zs = torch.where(valid, z, torch.ones_like(z))  # keeps culled rows finite
     # clamp the direction used in the Jacobian to the frustum widened by 30% (gsplat's limits)
-    tan_fovx = 0.5 * width / fx
-    tan_fovy = 0.5 * height / fy
-    lim_x_pos = (width - cx - 0.5) / fx + 0.3 * tan_fovx
-    lim_x_neg = (cx + 0.5) / fx + 0.3 * tan_fovx
-    lim_y_pos = (height - cy - 0.5) / fy + 0.3 * tan_fovy
-    lim_y_neg = (cy + 0.5) / fy + 0.3 * tan_fovy
-    tx = zs * torch.minimum(torch.maximum(x / zs, -lim_x_neg), lim_x_pos)
-    ty = zs * torch.minimum(torch.maximum(y / zs, -lim_y_neg), lim_y_pos)
+    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
+                                                                float(cy))
+    tx = zs * (x / zs).clamp(-lim_x_neg, lim_x_pos)
+    ty = zs * (y / zs).clamp(-lim_y_neg, lim_y_pos)
     rz = 1.0 / zs
     zero = torch.zeros_like(zs)
     J = torch.stack([fx * rz, zero, -fx * tx * rz * rz,
