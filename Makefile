@@ -25,6 +25,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/assets.py
 	$(BIN)/python benchmarks/generate.py
 	$(BIN)/python benchmarks/dope.py
+	$(BIN)/python benchmarks/scan.py
 
 setup: $(STAMP)
 

@@ -288,6 +288,44 @@ def register_second_half(rec: sfm.SfmResult, S_frame_rec: np.ndarray, options: S
     return cameras, points @ S[:3, :3].T + S[:3, 3], colours, report
 
 
+def training_views(photos, size: int) -> list:
+    """TrainViews from (photo path, mask path or None, pycolmap camera, T_cam_frame [4, 4]) tuples: each
+    photo (and mask) undistorted to a pinhole image with its longest side at most ``size`` pixels."""
+    from pegasus_gen.splat_training import TrainView
+
+    views = []
+    for path, mask_path, camera, T in photos:
+        K, dist = camera_model(camera)
+        image, K_train = training_image(path, K, dist, size)
+        mask = None
+        if mask_path is not None:
+            mask, _ = training_image(mask_path, K, dist, size, interpolation=cv2.INTER_LINEAR)
+            mask = mask if mask.ndim == 2 else mask[..., 0]
+        views.append(TrainView(image=image, K=K_train, T_cam_world=np.asarray(T, np.float64), mask=mask,
+                               name=path.name))
+    return views
+
+
+def metric_frame(rec: sfm.SfmResult, detections: dict, options: ScanOptions, rng: np.random.Generator
+                 ) -> tuple[np.ndarray, dict, dict]:
+    """The similarity S [4, 4] from the reconstruction to the scan frame (metres, support plane z = 0,
+    z up, an object over the origin), with the scale report and the alignment report."""
+    if options.scale is not None:
+        scale, scale_report = options.scale, {"scale_m_per_unit": options.scale, "source": "--scale"}
+    else:
+        corners = scan_markers.triangulate_markers(rec, detections)
+        scale, scale_report = scan_markers.metric_scale(corners, options.aruco_size)
+        scale_report["source"] = "aruco"
+        _log(f"      scale {scale:.5g} m/unit from {scale_report['edges']} marker edges "
+             f"(spread {100 * scale_report['relative_std']:.2f}%)")
+    points, _ = rec.points()
+    centres = np.array([np.linalg.inv(rec.T_cam_world(n))[:3, 3] for n in rec.registered])
+    T_align, alignment = align_to_support_plane(points * scale, centres * scale, options.kind, rng)
+    S = T_align @ similarity_matrix(scale, np.eye(4))
+    alignment["S_frame_reconstruction"] = S.tolist()
+    return S, scale_report, alignment
+
+
 def _train_config(options: ScanOptions):
     from pegasus_gen.splat_training import SplatTrainConfig
 
@@ -336,19 +374,9 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
          f"reprojection error {report['sfm']['mean_reprojection_error_px']:.2f} px")
 
     _log("[3/5] metric scale and alignment")
-    if options.scale is not None:
-        scale, report["scale"] = options.scale, {"scale_m_per_unit": options.scale, "source": "--scale"}
-    else:
-        corners = scan_markers.triangulate_markers(rec, detections)
-        scale, report["scale"] = scan_markers.metric_scale(corners, options.aruco_size)
-        report["scale"]["source"] = "aruco"
-        _log(f"      scale {scale:.5g} m/unit from {report['scale']['edges']} marker edges "
-             f"(spread {100 * report['scale']['relative_std']:.2f}%)")
+    S, report["scale"], report["alignment"] = metric_frame(rec, detections, options, rng)
+    scale = report["scale"]["scale_m_per_unit"]
     points, colours = rec.points()
-    centres = np.array([np.linalg.inv(rec.T_cam_world(n))[:3, 3] for n in registered])
-    T_align, report["alignment"] = align_to_support_plane(points * scale, centres * scale, options.kind, rng)
-    S = T_align @ similarity_matrix(scale, np.eye(4))  # reconstruction -> asset frame
-    report["alignment"]["S_frame_reconstruction"] = S.tolist()
     report["cameras_T_cam_frame"] = {n: camera_in_frame(rec.T_cam_world(n), S).tolist() for n in registered}
 
     aligned = points @ S[:3, :3].T + S[:3, 3]
@@ -367,20 +395,10 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
              f"{1000 * report['second_half']['shared_camera_residual_m']:.1f} mm)")
 
     _log(f"[4/5] Gaussian-splat training on {len(photos)} photos")
-    from pegasus_gen.splat_training import TrainView, init_from_points, train_splats
+    from pegasus_gen.splat_training import init_from_points, train_splats
 
     t = time.perf_counter()
-    train_size = options.train_size or TRAIN_SIZE[options.preset]
-    views = []
-    for path, mask_path, camera, T in photos:
-        K, dist = camera_model(camera)
-        image, K_train = training_image(path, K, dist, train_size)
-        mask = None
-        if mask_path is not None:
-            mask, _ = training_image(mask_path, K, dist, train_size, interpolation=cv2.INTER_LINEAR)
-            mask = mask if mask.ndim == 2 else mask[..., 0]
-        views.append(TrainView(image=image, K=K_train, T_cam_world=np.asarray(T, np.float64), mask=mask,
-                               name=path.name))
+    views = training_views(photos, options.train_size or TRAIN_SIZE[options.preset])
     held_out = views[options.holdout_every - 1::options.holdout_every] if len(views) >= 2 * options.holdout_every \
         else []
     train_views = [v for v in views if all(v is not h for h in held_out)]
@@ -397,7 +415,7 @@ def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
     report["training"] = train_report
     report["timings_s"]["training"] = time.perf_counter() - t
     write_ply(work_dir / "splats_aligned.ply", cloud)
-    _preview(work_dir / "preview.png", cloud, held_out or train_views, "cpu")
+    _preview(work_dir / "preview.png", cloud, held_out or train_views, options.device)
 
     _log("[5/5] asset")
     if options.kind == "object":
