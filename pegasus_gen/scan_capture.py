@@ -22,6 +22,7 @@ from pegasus_gen.cameras import look_at
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.images import rgb_to_uint8, write_image
 from pegasus_gen.render import render
+from pegasus_gen.scan_markers import aruco_dictionary
 from pegasus_gen.splats import SplatCloud
 
 BOARD_SIZE = 0.50  # m, square
@@ -30,15 +31,6 @@ MARKER_SIZE = 0.05  # m, the black square's edge
 MARKER_DICT = "DICT_4X4_50"
 MARKER_CENTRES = ((-0.17, -0.17), (0.17, -0.17), (0.17, 0.17), (-0.17, 0.17))  # ids 0..3, metres
 TEXELS_PER_M = 2400
-
-
-def aruco_dictionary(name: str):
-    """The cv2.aruco predefined dictionary called ``name`` (e.g. "DICT_4X4_50"), with a clear error."""
-    value = getattr(cv2.aruco, name, None)
-    if not name.startswith("DICT_") or not isinstance(value, int):
-        known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
-        raise PegasusError(f"unknown ArUco dictionary {name!r}; choose one of: {', '.join(known)}")
-    return cv2.aruco.getPredefinedDictionary(value)
 
 
 def marker_corners_world(centre_xy, size: float) -> np.ndarray:

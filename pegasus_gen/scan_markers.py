@@ -13,11 +13,19 @@ import cv2
 import numpy as np
 
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.scan_capture import aruco_dictionary
 from pegasus_gen.sfm import SfmResult
 
 MIN_VIEWS = 2  # a corner needs at least this many views to be triangulated
 MAX_REPROJECTION_PX = 2.0  # corners whose triangulation misses a view by more are dropped
+
+
+def aruco_dictionary(name: str):
+    """The cv2.aruco predefined dictionary called ``name`` (e.g. "DICT_4X4_50"), with a clear error."""
+    value = getattr(cv2.aruco, name, None)
+    if not name.startswith("DICT_") or not isinstance(value, int):
+        known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+        raise PegasusError(f"unknown ArUco dictionary {name!r}; choose one of: {', '.join(known)}")
+    return cv2.aruco.getPredefinedDictionary(value)
 
 
 def detect_markers(image: np.ndarray, dictionary: str) -> dict[int, np.ndarray]:

@@ -198,3 +198,10 @@ def test_scan_capture_command_writes_photos_masks_and_truth(tmp_path, capsys):
     truth = json.loads((tmp_path / "c" / "truth.json").read_text())
     assert set(truth["images"]) == {"0000.png", "0001.png"}
     assert "pegasus scan" in capsys.readouterr().out
+
+
+def test_unknown_marker_dictionary_is_named(tmp_path):
+    write_capture(tmp_path / "cap", views=3, width=120, height=90, progress=False)
+    with pytest.raises(PegasusError, match="unknown ArUco dictionary 'DICT_NOPE'"):
+        run_scan(tmp_path / "cap" / "images", tmp_path / "work",
+                 ScanOptions(name="x", obj_id=3, aruco_size=0.05, aruco_dict="DICT_NOPE"), AssetLibrary(tmp_path / "l"))
