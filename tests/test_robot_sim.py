@@ -62,7 +62,9 @@ def test_ur_rtde_client_reads_state_moves_and_sets_io(controller):
         far = start.copy()
         far[1] -= 0.3
         assert control.moveL(far.tolist(), 0.1, 0.5, True)  # asynchronous: returns at once
-        time.sleep(0.8)
+        deadline = time.monotonic() + 10.0  # the simulation may run slower than wall time under load
+        while abs(receive.getActualTCPPose()[1] - start[1]) < 0.03 and time.monotonic() < deadline:
+            time.sleep(0.02)
         assert control.getAsyncOperationProgressEx().isAsyncOperationRunning()
         control.stopL(2.0)
         time.sleep(0.3)
