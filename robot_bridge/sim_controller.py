@@ -151,17 +151,15 @@ class SimController:
         log.info("sim controller: %s", what)
 
     # -- robot state as RTDE variables ----------------------------------------------------------------
-    def _value(self, name: str, kind: str):
+    def _values(self, names: list[str], kinds: list[str]) -> list:
+        """The current values of the RTDE output variables ``names`` (of types ``kinds``); the state is
+        read once per call (one forward kinematics), not once per variable."""
         s, sim = self.state, self.sim
-        if name in s.outputs:
-            return s.outputs[name]
-        if name in s.inputs:
-            return s.inputs[name]
-        values = {
+        tcp_pose = tuple(matrix_to_pose(sim.tcp_pose()))
+        state = {
             "timestamp": time.monotonic() - self._t0, "actual_q": tuple(sim.q), "target_q": tuple(sim.q),
             "actual_qd": tuple(sim.qd), "target_qd": tuple(sim.qd),
-            "actual_TCP_pose": tuple(matrix_to_pose(sim.tcp_pose())),
-            "target_TCP_pose": tuple(matrix_to_pose(sim.tcp_pose())),
+            "actual_TCP_pose": tcp_pose, "target_TCP_pose": tcp_pose,
             "tcp_offset": tuple(matrix_to_pose(sim.tcp)),
             "robot_mode": ROBOT_MODE_RUNNING, "joint_mode": (253,) * 6,
             "safety_mode": SAFETY_PROTECTIVE_STOP if s.protective_stop else SAFETY_NORMAL,
@@ -174,11 +172,19 @@ class SimController:
             "standard_analog_input0": sim.gripper_width() / GRIPPER_METRES_PER_VOLT,
             "actual_main_voltage": 48.0, "actual_robot_voltage": 48.0, "joint_temperatures": (30.0,) * 6,
         }
-        if name in values:
-            return values[name]
-        fmt = rp.FORMATS[kind]
-        zero = False if kind == "BOOL" else 0
-        return (zero,) * int(fmt[0]) if fmt[0].isdigit() else zero
+        values = []
+        for name, kind in zip(names, kinds):
+            if name in s.outputs:
+                values.append(s.outputs[name])
+            elif name in s.inputs:
+                values.append(s.inputs[name])
+            elif name in state:
+                values.append(state[name])
+            else:  # a variable the simulation does not model reads as zero
+                fmt = rp.FORMATS[kind]
+                zero = False if kind == "BOOL" else 0
+                values.append((zero,) * int(fmt[0]) if fmt[0].isdigit() else zero)
+        return values
 
     def _apply_inputs(self, names: list[str], values: list) -> None:
         with self.lock:
@@ -344,7 +350,7 @@ class SimController:
                 for rid, (names, types, freq) in list(outputs.items()):
                     if now >= next_time.get(rid, now):
                         with self.lock:
-                            values = [self._value(n, t) for n, t in zip(names, types)]
+                            values = self._values(names, types)
                         send(rp.DATA_PACKAGE, bytes([rid]) + rp.pack_values(types, values))
                         next_time[rid] = max(next_time.get(rid, now) + 1 / freq, now)
                 time.sleep(max(0.0, min(next_time.values(), default=now + 0.01) - time.monotonic()))
