@@ -26,6 +26,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/generate.py
 	$(BIN)/python benchmarks/dope.py
 	$(BIN)/python benchmarks/scan.py
+	$(BIN)/python benchmarks/robot.py
 
 setup: $(STAMP)
 
