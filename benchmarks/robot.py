@@ -20,10 +20,9 @@ from pegasus_gen.demo_assets import build_demo_library
 from robot_bridge.bridge import UR5, BridgeConfig, GripperConfig
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.pick import pick_and_place
-from robot_bridge.sim_controller import SimControllerProcess
+from robot_bridge.sim_controller import SimControllerProcess, sim_object_pose
 
 HOST = "127.0.0.211"
-CUP_MIN, CUP_SIZE = np.array([-0.047, -0.047, -0.0525]), np.array([0.094, 0.094, 0.105])  # noodle_cup_red, m
 BASKET = np.array([-0.15, -0.45, 0.0])
 
 
@@ -36,7 +35,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp, SimControllerProcess(HOST, time_scale=args.time_scale) as sim:
         lib = AssetLibrary(tmp)
         build_demo_library(lib)
-        cup = lib.get("noodle_cup_red").urdf_path
+        asset = lib.get("noodle_cup_red")
+        cup = asset.urdf_path
+        box_min, box_size = asset.mesh.bounds[0], np.ptp(asset.mesh.bounds, axis=0)  # model frame, m
         sim.command(f"sim basket {BASKET[0]} {BASKET[1]} {BASKET[2]}")
         config = BridgeConfig(host=HOST, speed=0.4, acceleration=1.5, gripper=GripperConfig(settle_s=0.6))
         cycles, landed = [], 0
@@ -44,13 +45,9 @@ def main() -> None:
             for _ in range(args.picks):
                 x, y, yaw = rng.uniform(-0.55, -0.35), rng.uniform(-0.15, 0.15), rng.uniform(0, 2 * np.pi)
                 q = Rotation.from_euler("z", yaw).as_quat()
-                sim.command(f"sim add cup {cup} {x} {y} {-CUP_MIN[2] + 0.002} {q[0]} {q[1]} {q[2]} {q[3]}")
+                sim.command(f"sim add cup {cup} {x} {y} {-box_min[2] + 0.002} {q[0]} {q[1]} {q[2]} {q[3]}")
                 time.sleep(0.5 / args.time_scale)  # settles
-                values = [float(v) for v in sim.command("sim pose cup").split()]
-                T_base_obj = np.eye(4)
-                T_base_obj[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
-                T_base_obj[:3, 3] = values[:3]
-                plan = plan_grasp(T_base_obj, np.eye(4), CUP_MIN, CUP_SIZE, BASKET[:2], 0.006, robot.tcp_pose(),
+                plan = plan_grasp(sim_object_pose(HOST, "cup"), np.eye(4), box_min, box_size, BASKET[:2], 0.006, robot.tcp_pose(),
                                   axis=[0, 0, 1], envelope=config.envelope)
                 t = time.perf_counter()
                 result = pick_and_place(robot, plan)

@@ -80,9 +80,10 @@ class SimSource:
     def __init__(self, host: str, library: str, environment: str, T_world_base, T_world_cam, width: int,
                  height: int, K: np.ndarray, device: str):
         from pegasus_gen.assets import AssetLibrary
-        from robot_bridge.sim_controller import dashboard_command
+        from robot_bridge.sim_controller import dashboard_command, sim_object_pose
 
         self.command = lambda text: dashboard_command(host, text)
+        self.object_pose = lambda name: sim_object_pose(host, name)
         self.library = AssetLibrary(library or None)
         self.environment = self.library.get(environment).splats.with_label(0)
         self.T_world_base = np.array(T_world_base, dtype=np.float64).reshape(4, 4)
@@ -92,16 +93,7 @@ class SimSource:
 
     def object_poses(self) -> dict[str, np.ndarray]:
         """{sim object name: T_world_obj}."""
-        from scipy.spatial.transform import Rotation
-
-        poses = {}
-        for name in self.command("sim list").split():
-            values = [float(v) for v in self.command(f"sim pose {name}").split()]
-            T = np.eye(4)
-            T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
-            T[:3, 3] = values[:3]
-            poses[name] = self.T_world_base @ T
-        return poses
+        return {name: self.T_world_base @ self.object_pose(name) for name in self.command("sim list").split()}
 
     def read(self) -> np.ndarray:
         from pegasus_gen.images import rgb_to_uint8

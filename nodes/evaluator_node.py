@@ -30,7 +30,7 @@ from pegasus_gen.assets import AssetLibrary
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.images import write_image
 from pegasus_gen.view import draw_instance
-from robot_bridge.sim_controller import dashboard_command
+from robot_bridge.sim_controller import dashboard_command, sim_object_pose
 
 
 class EvaluatorNode(Node):
@@ -81,11 +81,7 @@ class EvaluatorNode(Node):
 
     def announce(self) -> None:
         c = self.current
-        values = [float(v) for v in self.command(f"sim pose {c['name']}").split()]
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
-        T[:3, 3] = values[:3]
-        c["T_base_obj"] = T
+        c["T_base_obj"] = sim_object_pose(self.params["host"], c["name"])
         c["announced"] = time.monotonic()
         self.state = "running"
         self.attempt_pub.publish(msgs.String(data=json.dumps({"attempt": c["attempt"], "object": c["object"]})))

@@ -35,6 +35,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from pegasus_gen.errors import PegasusError
 from robot_bridge import rtde_protocol as rp
@@ -556,6 +557,15 @@ def dashboard_command(host: str, text: str, timeout: float = 5.0) -> str:
         reader.readline()  # welcome
         conn.sendall((text + "\n").encode())
         return reader.readline().strip()
+
+
+def sim_object_pose(host: str, name: str, timeout: float = 5.0) -> np.ndarray:
+    """T_base_obj [4, 4] (m) of the simulated object ``name`` (the dashboard's ``sim pose NAME``)."""
+    values = [float(v) for v in dashboard_command(host, f"sim pose {name}", timeout).split()]
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
+    T[:3, 3] = values[:3]
+    return T
 
 
 class SimControllerProcess:

@@ -15,7 +15,7 @@ from robot_bridge.grasp import plan_grasp
 from robot_bridge.kinematics import fk
 from robot_bridge.pick import pick_and_place
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
-from robot_bridge.sim_controller import SimControllerProcess
+from robot_bridge.sim_controller import SimControllerProcess, sim_object_pose
 from robot_bridge.sim_world import HOME_Q
 
 CUP_MIN, CUP_SIZE = np.array([-0.047, -0.047, -0.0525]), np.array([0.094, 0.094, 0.105])
@@ -94,11 +94,7 @@ def test_twenty_cup_picks_with_the_real_client_land_in_the_basket(cup_urdf):
                 q = Rotation.from_euler("z", yaw).as_quat()
                 sim.command(f"sim add cup {cup_urdf} {x} {y} {-CUP_MIN[2] + 0.002} {q[0]} {q[1]} {q[2]} {q[3]}")
                 time.sleep(0.15)  # settles (at 4x)
-                values = [float(v) for v in sim.command("sim pose cup").split()]
-                T_base_obj = np.eye(4)
-                T_base_obj[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
-                T_base_obj[:3, 3] = values[:3]
-                T_cam_obj = np.linalg.inv(T_base_cam) @ T_base_obj  # what pose estimation would report
+                T_cam_obj = np.linalg.inv(T_base_cam) @ sim_object_pose(host, "cup")  # what pose estimation would report
                 plan = plan_grasp(T_cam_obj, T_base_cam, CUP_MIN, CUP_SIZE, BASKET[:2], 0.006, robot.tcp_pose(),
                                   axis=[0, 0, 1], envelope=config.envelope)
                 result = pick_and_place(robot, plan)
