@@ -168,14 +168,16 @@ def test_too_few_or_unrelated_photos_fail_clearly_without_an_asset(tmp_path, cap
     assert not library.exists() or not any(library.iterdir())
 
 
-def test_environment_scan_is_level_and_metric(tmp_path):
-    """The board scanned as an environment (no masks, estimated camera): level at z = 0, board-sized."""
+def test_environment_scan_is_level_and_metric(tmp_path, capsys):
+    """The board scanned as an environment through the command line (no masks, estimated camera, photos
+    matched in sequence): level at z = 0, board-sized."""
     write_capture(tmp_path / "cap", views=20, width=400, height=300, seed=3, progress=False)
     library = AssetLibrary(tmp_path / "lib")
-    report = run_scan(tmp_path / "cap" / "images", tmp_path / "work",
-                      ScanOptions(kind="environment", name="board", aruco_size=0.05, train_size=64, iterations=150,
-                                  device="cpu"),
-                      library)
+    assert main(["scan", str(tmp_path / "cap" / "images"), "--kind", "environment", "--name", "board",
+                 "--aruco-size", "0.05", "--matcher", "sequential", "--train-size", "64", "--iterations", "150",
+                 "--device", "cpu", "--library", str(library.root), "--work", str(tmp_path / "work")]) == 0
+    assert "structure from motion (sequential matching)" in capsys.readouterr().out
+    report = json.loads((tmp_path / "work" / "scan_report.json").read_text())
     assert report["sfm"]["registered_fraction"] >= 0.9
     env = library.get("board")
     xy, z = env.splats.means[:, :2], env.splats.means[:, 2]
