@@ -11,10 +11,10 @@ import time
 import numpy as np
 import trimesh
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.collision_mesh import splats_to_mesh
-from pegasus_gen.demo_assets import build_demo_library
-from pegasus_gen.mesh_splats import mesh_to_splats
+from pegasus_gen.assets.collision import splats_to_mesh
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.splats.from_mesh import mesh_to_splats
 
 
 def timed(fn):

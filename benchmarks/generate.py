@@ -8,10 +8,10 @@ import argparse
 import tempfile
 import time
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.config import load_config
-from pegasus_gen.demo_assets import build_demo_library
-from pegasus_gen.generate import generate
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
 
 
 def main():

@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from pegasus_gen import synthetic
-from pegasus_gen.cameras import intrinsics_from_fov, look_at
-from pegasus_gen.render import cuda_status, render
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render.renderer import cuda_status, render
+from pegasus_gen.splats import procedural as synthetic
 
 
 def orbit_cameras(n: int):

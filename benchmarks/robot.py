@@ -15,8 +15,8 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.demo_assets import build_demo_library
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
 from robot_bridge.bridge import UR5, BridgeConfig, GripperConfig
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.pick import pick_and_place

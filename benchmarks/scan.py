@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.scan import ScanOptions, fit_similarity, run_scan
-from pegasus_gen.scan_capture import write_capture
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.scan.capture import write_capture
+from pegasus_gen.scan.pipeline import ScanOptions, fit_similarity, run_scan
 
 
 def main():

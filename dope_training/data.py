@@ -16,12 +16,11 @@ import cv2
 import numpy as np
 import torch
 
-from dope_training.cuboid import cuboid_points, project_points
 from dope_training.targets import make_targets
+from pegasus_gen.dataset.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.files import read_json
-
-IMAGE_EXTENSIONS = (".jpg", ".png", ".jpeg")
+from pegasus_gen.geometry.cuboid import cuboid_points, project_points
+from pegasus_gen.io.files import read_json
 
 
 @dataclass
@@ -33,22 +32,6 @@ class Sample:
     keypoints: list[np.ndarray] = field(default_factory=list)
     obj_ids: list[int] = field(default_factory=list)
     visibility: list[float] = field(default_factory=list)
-
-
-def model_boxes(root: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """{obj_id: (bbox_min [3], bbox_size [3]) in metres} from a BOP dataset's models/models_info.json."""
-    info = read_json(Path(root) / "models" / "models_info.json")
-    return {int(k): (np.array([v["min_x"], v["min_y"], v["min_z"]]) / 1000.0,
-                     np.array([v["size_x"], v["size_y"], v["size_z"]]) / 1000.0) for k, v in info.items()}
-
-
-def object_names(split_dir: Path) -> dict[str, int]:
-    """{name: obj_id} from the scenes' scene_gt_coco.json categories (empty when there are none)."""
-    names = {}
-    for coco in sorted(split_dir.glob("*/scene_gt_coco.json")):
-        for category in read_json(coco).get("categories", []):
-            names[category["name"]] = int(category["id"])
-    return names
 
 
 def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> list[int]:
@@ -64,52 +47,6 @@ def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> 
                 raise PegasusError(f"{where}: no object with obj_id {obj} (known: {sorted(boxes)})")
             ids.append(int(obj))
     return ids
-
-
-@dataclass
-class BopInstance:
-    """One ground-truth instance: obj_id, T_cam_obj [4, 4] (m), its index in scene_gt and visib_fract (None
-    without scene_gt_info.json)."""
-
-    obj_id: int
-    T: np.ndarray
-    index: int
-    visib_fract: float | None
-
-
-@dataclass
-class BopFrame:
-    """One image of a BOP split: scene folder, im_id, image path, K [3, 3] and the instances in it."""
-
-    scene: Path
-    im_id: int
-    image: Path
-    K: np.ndarray
-    instances: list[BopInstance]
-
-
-def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
-    """Iterate over the BopFrames of a BOP split folder, scene by scene, in im_id order (the first
-    ``max_per_scene`` of each scene when given)."""
-    split_dir = Path(split_dir)
-    for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        gt = read_json(scene / "scene_gt.json")
-        cams = read_json(scene / "scene_camera.json")
-        infos = read_json(scene / "scene_gt_info.json") if (scene / "scene_gt_info.json").is_file() else {}
-        for im_id in sorted(gt, key=int)[:max_per_scene]:
-            image = next((scene / "rgb" / f"{int(im_id):06d}{e}" for e in IMAGE_EXTENSIONS
-                          if (scene / "rgb" / f"{int(im_id):06d}{e}").is_file()), None)
-            if image is None:
-                raise PegasusError(f"{scene}/rgb: no image {int(im_id):06d}")
-            instances = []
-            for n, entry in enumerate(gt[im_id]):
-                T = np.eye(4)
-                T[:3, :3] = np.array(entry["cam_R_m2c"], dtype=np.float64).reshape(3, 3)
-                T[:3, 3] = np.array(entry["cam_t_m2c"], dtype=np.float64) / 1000.0
-                visib = infos[im_id][n]["visib_fract"] if im_id in infos else None
-                instances.append(BopInstance(int(entry["obj_id"]), T, n, visib))
-            yield BopFrame(scene, int(im_id), image, np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3),
-                           instances)
 
 
 def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility: float = 0.1) -> list[Sample]:

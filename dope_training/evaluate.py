@@ -22,12 +22,12 @@ import trimesh
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from dope_training.data import bop_frames
 from dope_training.infer import DopeModel
-from pegasus_gen import images
+from pegasus_gen.dataset.bop import bop_frames
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.files import read_json, write_atomic
-from pegasus_gen.plots import line_chart
+from pegasus_gen.io import images
+from pegasus_gen.io.files import read_json, write_atomic
+from pegasus_gen.io.plots import line_chart
 
 THRESHOLDS_M = (0.02, 0.05, 0.10)
 AUC_MAX_M = 0.10

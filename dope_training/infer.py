@@ -20,10 +20,10 @@ import numpy as np
 import torch
 
 from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_checkpoint
-from dope_training.cuboid import cuboid_points
 from dope_training.decode import find_keypoints
 from dope_training.pnp import solve_pose
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.geometry.cuboid import cuboid_points
 
 STRIDE = 8
 

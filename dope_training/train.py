@@ -34,12 +34,13 @@ import yaml
 from tqdm import tqdm
 
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
-from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, model_boxes, object_names, resolve_objects
+from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
 from dope_training.model import DopeNetwork, ModelConfig, dope_loss, load_vgg19_weights, model_config
-from pegasus_gen import images
+from pegasus_gen.dataset.bop import model_boxes, object_names
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.files import read_json, write_atomic
-from pegasus_gen.plots import line_chart
+from pegasus_gen.io import images
+from pegasus_gen.io.files import read_json, write_atomic
+from pegasus_gen.io.plots import line_chart
 
 # Keys a resumed run may change; any other difference means another experiment and is refused.
 RESUMABLE_KEYS = {"epochs", "device", "loader_workers", "keep_checkpoints", "checkpoint_every", "out"}

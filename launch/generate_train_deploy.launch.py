@@ -5,10 +5,11 @@ pegasus launch launch/generate_train_deploy.launch.py object:=noodle_cup_red ima
 """
 
 try:
-    from launch import LaunchDescription
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+
+    from launch import LaunchDescription
 except ImportError:
     from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
 

@@ -10,13 +10,14 @@ basket stands at base (-0.25, -0.28); the camera looks down at the pick area fro
 
 import numpy as np
 
-from pegasus_gen.cameras import look_at
+from pegasus_gen.geometry.cameras import look_at
 
 try:
-    from launch import LaunchDescription
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+
+    from launch import LaunchDescription
 except ImportError:
     from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
 

@@ -8,10 +8,11 @@ hand-eye calibration; basket is the basket floor centre in the base frame.
 """
 
 try:
-    from launch import LaunchDescription
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+
+    from launch import LaunchDescription
 except ImportError:
     from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
 

@@ -79,7 +79,7 @@ class SimSource:
 
     def __init__(self, host: str, library: str, environment: str, T_world_base, T_world_cam, width: int,
                  height: int, K: np.ndarray, device: str):
-        from pegasus_gen.assets import AssetLibrary
+        from pegasus_gen.assets.library import AssetLibrary
         from robot_bridge.sim_controller import dashboard_command, sim_object_pose
 
         self.command = lambda text: dashboard_command(host, text)
@@ -96,8 +96,8 @@ class SimSource:
         return {name: self.T_world_base @ self.object_pose(name) for name in self.command("sim list").split()}
 
     def read(self) -> np.ndarray:
-        from pegasus_gen.images import rgb_to_uint8
-        from pegasus_gen.render import render
+        from pegasus_gen.io.images import rgb_to_uint8
+        from pegasus_gen.render.renderer import render
 
         parts = [self.environment]
         for k, (name, T) in enumerate(self.object_poses().items()):

@@ -18,8 +18,6 @@ from pathlib import Path
 from nodes.launch import run as run_launch
 from pegasus_gen.errors import PegasusError
 
-LAUNCH_DIR = Path(__file__).resolve().parents[1] / "launch"
-
 
 @dataclass
 class DemoSettings:
@@ -46,8 +44,8 @@ class DemoSettings:
 
 def run_demo(out: str | Path, full: bool = False, library: str | None = None, host: str = "127.0.0.1") -> Path:
     """Run every step into ``out`` (refused when it is not empty) and return the report's path."""
-    from pegasus_gen.assets import AssetLibrary
-    from pegasus_gen.demo_assets import build_demo_library
+    from pegasus_gen.assets.demo import build_demo_library
+    from pegasus_gen.assets.library import AssetLibrary
 
     s = DemoSettings.of(full)
     out = Path(out)
@@ -63,7 +61,7 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     dataset, train_run = out / "dataset", out / "train"
     target = s.objects.split(",")[0]
     objects = f"[{{asset: {target}, count: [1, 2]}}, {{asset: snack_box, count: [0, 1]}}, {{asset: drink_can, count: [0, 1]}}]"
-    nodes = run_launch(LAUNCH_DIR / "generate_train_deploy.launch.py", [
+    nodes = run_launch("generate_train_deploy.launch.py", [
         f"object:={target}", f"output:={dataset}", f"run:={train_run}", f"scenes:={s.scenes}",
         f"frames:={s.frames}", f"width:={s.width}", f"height:={s.height}", f"epochs:={s.epochs}",
         f"variant:={s.variant}", f"size:={s.size}", f"device:={s.device}",
@@ -78,8 +76,8 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     t0 = time.monotonic()
     from dope_training.evaluate import evaluate, write_report
     from dope_training.infer import DopeModel
-    from pegasus_gen.config import load_config
-    from pegasus_gen.generate import generate
+    from pegasus_gen.dataset.config import load_config
+    from pegasus_gen.dataset.generate import generate
 
     held_out = generate(load_config(None, [f"output={out / 'held_out'}", *lib_args, "scenes=1",
                                            f"frames_per_scene={max(s.frames, 10)}", f"camera.width={s.width}",
@@ -91,7 +89,7 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     times["evaluate on a held-out environment"] = time.monotonic() - t0
 
     t0 = time.monotonic()
-    run_launch(LAUNCH_DIR / "sim_pick_place.launch.py", [
+    run_launch("sim_pick_place.launch.py", [
         f"model:={model}", f"attempts:={s.attempts}", f"objects:={s.objects}", f"library:={lib.root}",
         f"host:={host}", f"time_scale:={s.time_scale}", f"report:={out / 'sim_grasp'}", f"device:={s.device}"])
     times["closed-loop grasping (simulated cell)"] = time.monotonic() - t0

@@ -26,10 +26,10 @@ from scipy.spatial.transform import Rotation
 
 from dope_training.evaluate import add_error, adds_error
 from nodes.ros import Node, latched, msgs, run_node
-from pegasus_gen.assets import AssetLibrary
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.view import draw_instance
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.images import write_image
-from pegasus_gen.view import draw_instance
+from pegasus_gen.io.images import write_image
 from robot_bridge.sim_controller import dashboard_command, sim_object_pose
 
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from nodes.background import BackgroundJob
 from nodes.ros import Node, latched, msgs, run_node
-from pegasus_gen.config import load_config
-from pegasus_gen.generate import generate
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
 
 
 class GeneratorNode(Node):

@@ -14,7 +14,7 @@ import numpy as np
 
 from dope_training.infer import DopeModel
 from nodes.ros import Node, latched, msgs, run_node
-from pegasus_gen.view import draw_instance
+from pegasus_gen.dataset.view import draw_instance
 
 
 class InferenceNode(Node):

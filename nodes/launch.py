@@ -67,10 +67,31 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     return out
 
 
+def launch_dir() -> Path:
+    """The folder of the launch files installed with the package (``pegasus_launch``; ``launch/`` in the source)."""
+    spec = importlib.util.find_spec("pegasus_launch")
+    if spec is None or not spec.submodule_search_locations:
+        raise PegasusError("the pegasus launch files are not installed (no package pegasus_launch)")
+    return Path(next(iter(spec.submodule_search_locations)))
+
+
+def installed_launch_files() -> list[str]:
+    """Names of the installed ``*.launch.py`` files, sorted."""
+    return sorted(p.name for p in launch_dir().glob("*.launch.py"))
+
+
+def find_launch_file(file: str | Path) -> Path:
+    """A launch file given as a path, or by the name of an installed one (``sim_pick_place.launch.py``)."""
+    path = Path(file)
+    if path.is_file():
+        return path
+    if path.name == str(file) and (launch_dir() / path.name).is_file():
+        return launch_dir() / path.name
+    raise PegasusError(f"{file}: no such launch file (installed: {', '.join(installed_launch_files())})")
+
+
 def load_description(path: str | Path) -> LaunchDescription:
-    path = Path(path)
-    if not path.is_file():
-        raise PegasusError(f"{path}: no such launch file")
+    path = find_launch_file(path)
     spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

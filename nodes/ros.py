@@ -7,14 +7,14 @@ otherwise the stand-in layer (``nodes.compat``, ``nodes.msgs``). Nodes import ev
 from __future__ import annotations
 
 try:  # pragma: no cover - exercised only where ROS 2 is installed
-    import rclpy
-    from rclpy.node import Node
-    from rclpy.qos import QoSProfile
-    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
-    from rclpy.parameter import Parameter
     import types
 
+    import rclpy
     from geometry_msgs.msg import Pose, PoseStamped, TransformStamped
+    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile
     from sensor_msgs.msg import CameraInfo, Image
     from std_msgs.msg import Header, String
     from std_srvs.srv import Trigger

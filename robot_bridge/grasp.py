@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dope_training.cuboid import cuboid_points
+from pegasus_gen.geometry.cuboid import cuboid_points
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
 
 

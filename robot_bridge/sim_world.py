@@ -130,7 +130,7 @@ def linear_motion(q_start, T_start: np.ndarray, T_target: np.ndarray, speed: flo
 
 class RobotSim:
     """The UR5, its gripper and the world it acts in. ``client``: a PyBullet client to join (e.g. a
-    ``pegasus_gen.physics.World``'s); by default its own, with a table top at z = 0 of the base frame."""
+    ``pegasus_gen.dataset.physics.World``'s); by default its own, with a table top at z = 0 of the base frame."""
 
     def __init__(self, client: int | None = None, T_world_base: np.ndarray | None = None, q=HOME_Q,
                  time_step: float = 1.0 / 240.0):

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from pegasus_gen.splats import SplatCloud
+from pegasus_gen.splats.cloud import SplatCloud
 
 
 def random_cloud(rng: np.random.Generator, n: int, sh_degree: int = 3, labels=(0,), center=(0, 0, 0),
@@ -27,10 +27,10 @@ def rng():
 @pytest.fixture(scope="session")
 def dope_dataset(tmp_path_factory):
     """A tiny BOP dataset for DOPE: 4 frames (320x240) of 3 red noodle cups seen from 0.28-0.32 m."""
-    from pegasus_gen.assets import AssetLibrary
-    from pegasus_gen.config import load_config
-    from pegasus_gen.demo_assets import build_demo_library
-    from pegasus_gen.generate import generate
+    from pegasus_gen.assets.demo import build_demo_library
+    from pegasus_gen.assets.library import AssetLibrary
+    from pegasus_gen.dataset.config import load_config
+    from pegasus_gen.dataset.generate import generate
 
     lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
     build_demo_library(lib)

@@ -5,12 +5,13 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.asset_import import import_mesh, import_splat
-from pegasus_gen.assets import AssetLibrary
+from pegasus_gen.assets.importers import import_mesh, import_splat
+from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.mesh_splats import mesh_to_splats
-from pegasus_gen.splats import concatenate, write_ply
-from pegasus_gen.synthetic import plane, wood_texture
+from pegasus_gen.splats.cloud import concatenate
+from pegasus_gen.splats.from_mesh import mesh_to_splats
+from pegasus_gen.splats.ply import write_ply
+from pegasus_gen.splats.procedural import plane, wood_texture
 
 
 def test_tilted_scaled_environment_is_levelled(tmp_path):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from pegasus_gen.assets import AssetLibrary, AssetManifest, load_asset, save_asset
+from pegasus_gen.assets.library import AssetLibrary, AssetManifest, load_asset, save_asset
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.mesh_splats import mesh_to_splats
+from pegasus_gen.splats.from_mesh import mesh_to_splats
 
 
 def off_centre_object():

@@ -4,9 +4,15 @@ import numpy as np
 import trimesh
 from plyfile import PlyData
 
-from pegasus_gen.assets import ContinuousSymmetry
-from pegasus_gen.bop import (camera_entry, depth_to_png_values, gt_info_entry, models_info_entry, pose_entry,
-                             write_model_ply)
+from pegasus_gen.assets.library import ContinuousSymmetry
+from pegasus_gen.dataset.bop import (
+    camera_entry,
+    depth_to_png_values,
+    gt_info_entry,
+    models_info_entry,
+    pose_entry,
+    write_model_ply,
+)
 
 
 def test_pose_and_camera_entries_are_in_millimetres_row_major():

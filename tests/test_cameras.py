@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.cameras import interpolate_poses, look_at, orbit_key_poses
+from pegasus_gen.geometry.cameras import interpolate_poses, look_at, orbit_key_poses
 
 
 def centre(T):
@@ -49,7 +49,7 @@ def test_slerp_halfway_between_two_views():
 
 
 def test_intrinsics_from_fov_or_focal_lengths():
-    from pegasus_gen.cameras import intrinsics
+    from pegasus_gen.geometry.cameras import intrinsics
 
     K = intrinsics(640, 480, 90.0)
     assert np.isclose(K[0, 0], 320) and K[0, 0] == K[1, 1] and np.allclose(K[:2, 2], [319.5, 239.5])

@@ -6,10 +6,10 @@ import sys
 import cv2
 import numpy as np
 import pytest
-
 from conftest import random_cloud
-from pegasus_gen.cli import main
-from pegasus_gen.splats import write_ply
+
+from pegasus_gen.cli.main import main
+from pegasus_gen.splats.ply import write_ply
 
 
 def test_demo_writes_images_and_scene(tmp_path, capsys):

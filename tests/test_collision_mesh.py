@@ -5,11 +5,11 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from pegasus_gen.collision_mesh import MeshParams, splats_to_mesh
+from pegasus_gen.assets.collision import MeshParams, splats_to_mesh
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.mesh_splats import mesh_to_splats
-from pegasus_gen.splats import concatenate
-from pegasus_gen.synthetic import plane
+from pegasus_gen.splats.cloud import concatenate
+from pegasus_gen.splats.from_mesh import mesh_to_splats
+from pegasus_gen.splats.procedural import plane
 
 
 def bowl():

@@ -2,7 +2,7 @@
 
 import pytest
 
-from pegasus_gen.config import GenerateConfig, load_config
+from pegasus_gen.dataset.config import GenerateConfig, load_config
 from pegasus_gen.errors import PegasusError
 
 

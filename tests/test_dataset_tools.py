@@ -8,15 +8,15 @@ import cv2
 import numpy as np
 import pytest
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.bop import ray_lengths
-from pegasus_gen.cli import main
-from pegasus_gen.config import load_config
-from pegasus_gen.demo_assets import build_demo_library
-from pegasus_gen.generate import generate
-from pegasus_gen.render import render
-from pegasus_gen.validate import validate
-from pegasus_gen.view import view
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.cli.main import main
+from pegasus_gen.dataset.bop import ray_lengths
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
+from pegasus_gen.dataset.validate import validate
+from pegasus_gen.dataset.view import view
+from pegasus_gen.render.renderer import render
 
 W, H = 320, 240
 

@@ -6,11 +6,11 @@ import pytest
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.cameras import intrinsics_from_fov, look_at
-from pegasus_gen.demo_assets import build_demo_library
-from pegasus_gen.render import render
-from pegasus_gen.silhouette import mesh_silhouette
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render.renderer import render
+from pegasus_gen.render.silhouette import mesh_silhouette
 
 
 @pytest.fixture(scope="module")

@@ -10,12 +10,12 @@ import onnx
 import pytest
 import torch
 
-from dope_training.cuboid import cuboid_points, project_points
 from dope_training.decode import find_keypoints
 from dope_training.export import check_parity, export_onnx
 from dope_training.model import DopeNetwork, ModelConfig, build_model, load_vgg19_weights
 from dope_training.pnp import solve_pose
 from dope_training.targets import make_targets
+from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 
 K = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])  # 640 x 480
 BOX_MIN, BOX_SIZE = np.array([-0.04, -0.03, -0.06]), np.array([0.08, 0.06, 0.10])  # off-centre in z

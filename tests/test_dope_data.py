@@ -9,11 +9,11 @@ import pytest
 
 from dope_training.data import Augment, DopeDataset, Sample, load_bop
 from dope_training.targets import cell_centres, make_targets
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.config import load_config
-from pegasus_gen.demo_assets import build_demo_library
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.generate import generate
 
 
 def test_belief_peaks_on_the_keypoint_and_affinities_point_to_the_centroid():

@@ -17,7 +17,7 @@ from dope_training.evaluate import add_error, adds_error, auc, evaluate, match_i
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, ObjectPose
 from dope_training.train import ShardSampler, TrainConfig, train
-from pegasus_gen.cli import main
+from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 
 

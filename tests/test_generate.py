@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.config import load_config
-from pegasus_gen.demo_assets import build_demo_library
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.generate import generate
 
 
 @pytest.fixture(scope="module")
@@ -159,7 +159,7 @@ def world_poses(scene_dir):
 
 
 def test_dynamic_scene_gt_follows_the_physics_of_each_frame(library, tmp_path):
-    from pegasus_gen.generate import frame_poses, load_assets, plan_scene
+    from pegasus_gen.dataset.generate import frame_poses, load_assets, plan_scene
 
     cfg = config(library, tmp_path / "dyn", "scenes=1", "frames_per_scene=6", "dynamic=true", "fps=20")
     out = generate(cfg)
@@ -182,9 +182,9 @@ def test_static_scene_keeps_the_rest_poses_in_every_frame(library, tmp_path):
 
 @pytest.mark.parametrize("offset", [[0.0, 0.0, 0.0], [0.35, 0.1, 0.0], [0.0, -0.3, 0.2]])
 def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
-    from pegasus_gen.cameras import intrinsics_from_fov, look_at
-    from pegasus_gen.generate import object_depth_canvas
-    from pegasus_gen.render import render
+    from pegasus_gen.dataset.generate import object_depth_canvas
+    from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+    from pegasus_gen.render.renderer import render
 
     asset = library.get(7)
     T_world_obj = np.eye(4)

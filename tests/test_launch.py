@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nodes.launch import run
-from pegasus_gen.cli import main
+from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 
 LAUNCH = '''
@@ -60,8 +60,8 @@ def test_bad_launch_arguments_are_clear_errors(launch_file, tmp_path, capsys):
 
 
 def test_generate_train_deploy_launch_runs_the_whole_loop(tmp_path, monkeypatch):
-    from pegasus_gen.assets import AssetLibrary
-    from pegasus_gen.demo_assets import build_demo_library
+    from pegasus_gen.assets.demo import build_demo_library
+    from pegasus_gen.assets.library import AssetLibrary
 
     lib = AssetLibrary(tmp_path / "lib")
     build_demo_library(lib)

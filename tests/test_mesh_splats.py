@@ -5,12 +5,12 @@ import pytest
 import trimesh
 from PIL import Image
 
-from pegasus_gen.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.mesh_splats import load_mesh, mesh_to_splats
-from pegasus_gen.render import render
-from pegasus_gen.silhouette import mesh_silhouette
-from pegasus_gen.sh import C0
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render.renderer import render
+from pegasus_gen.render.silhouette import mesh_silhouette
+from pegasus_gen.splats.from_mesh import load_mesh, mesh_to_splats
+from pegasus_gen.splats.sh import C0
 
 
 def splat_rgb(cloud):

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dope_training.cuboid import cuboid_points
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel
 from nodes import compat
@@ -20,6 +19,7 @@ from nodes.compat import Parameter
 from nodes.inference_node import InferenceNode
 from nodes.robot_node import RobotNode
 from nodes.ros import REAL_ROS
+from pegasus_gen.geometry.cuboid import cuboid_points
 from robot_bridge.bridge import UR5, BridgeConfig
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.kinematics import fk

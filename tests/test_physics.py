@@ -4,9 +4,9 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.demo_assets import build_demo_library
-from pegasus_gen.physics import PhysicsParams, World, drop_objects, random_quat_xyzw
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.physics import PhysicsParams, World, drop_objects, random_quat_xyzw
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +80,7 @@ def test_dynamic_recording_follows_the_motion(library):
 def test_objects_that_leave_the_support_are_removed(library):
     import dataclasses
 
-    from pegasus_gen.assets import DropRegion
+    from pegasus_gen.assets.library import DropRegion
 
     shelf = library.get("store_shelf")  # 1.0 x 0.4 m board; drop one object beside it
     beside = DropRegion(x_min=0.7, x_max=0.8, y_min=-0.05, y_max=0.05)

@@ -2,14 +2,13 @@
 
 import numpy as np
 import pytest
+from conftest import random_cloud
 from plyfile import PlyData, PlyElement
 
-from conftest import random_cloud
-from pegasus_gen.cameras import frame_points, intrinsics_from_fov
 from pegasus_gen.errors import SplatFileError
-from pegasus_gen.render import render
-from pegasus_gen.splat_ply import vertex_property_names
-from pegasus_gen.splats import read_ply, write_ply
+from pegasus_gen.geometry.cameras import frame_points, intrinsics_from_fov
+from pegasus_gen.render.renderer import render
+from pegasus_gen.splats.ply import read_ply, vertex_property_names, write_ply
 
 FIELDS = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh", "labels")
 

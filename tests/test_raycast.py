@@ -3,8 +3,8 @@
 import numpy as np
 import trimesh
 
-from pegasus_gen.cameras import intrinsics_from_fov, look_at
-from pegasus_gen.raycast import MeshRaycaster
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render.raycast import MeshRaycaster
 
 
 def test_depth_of_a_tilted_plane_is_exact():

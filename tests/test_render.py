@@ -4,15 +4,15 @@ import logging
 
 import numpy as np
 import pytest
+from conftest import random_cloud
+from reference_renderer import reference_render
 from scipy.spatial.transform import Rotation
 
-from conftest import random_cloud
-from pegasus_gen import synthetic
-from pegasus_gen.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.render import cuda_status, render
-from pegasus_gen.splats import SplatCloud, concatenate
-from reference_renderer import reference_render
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render.renderer import cuda_status, render
+from pegasus_gen.splats import procedural as synthetic
+from pegasus_gen.splats.cloud import SplatCloud, concatenate
 
 
 def small_camera(width=40, height=30):
@@ -172,7 +172,7 @@ def test_without_a_gpu_cuda_is_refused_and_auto_says_it_uses_cpu(caplog):
     K, T, w, h = small_camera()
     with pytest.raises(PegasusError, match="cuda.*not available"):
         render(cloud, K, T, w, h, device="cuda")
-    from pegasus_gen import render as render_module
+    from pegasus_gen.render import renderer as render_module
 
     render_module._log_auto_choice.cache_clear()
     with caplog.at_level(logging.INFO, logger="pegasus.render"):
@@ -181,7 +181,7 @@ def test_without_a_gpu_cuda_is_refused_and_auto_says_it_uses_cpu(caplog):
 
 
 def test_depth_sort_orders_front_to_back_like_a_stable_argsort():
-    from pegasus_gen.rasterizer_cpu import sort_by_depth
+    from pegasus_gen.render.cpu import sort_by_depth
 
     rng = np.random.default_rng(5)
     depth = rng.uniform(0.01, 50.0, 100_000)

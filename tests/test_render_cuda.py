@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from pegasus_gen import synthetic
-from pegasus_gen.cameras import intrinsics_from_fov, look_at
-from pegasus_gen.render import cuda_status, render
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render.renderer import cuda_status, render
+from pegasus_gen.splats import procedural as synthetic
 
 pytestmark = [pytest.mark.gpu, pytest.mark.skipif(not cuda_status()[0], reason=f"no CUDA: {cuda_status()[1]}")]
 

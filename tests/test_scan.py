@@ -8,12 +8,18 @@ import cv2
 import numpy as np
 import pytest
 
-from pegasus_gen.assets import AssetLibrary, load_asset
-from pegasus_gen.cli import main
+from pegasus_gen.assets.library import AssetLibrary, load_asset
+from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.scan import (ScanOptions, camera_in_frame, fit_similarity, run_scan, similarity_matrix,
-                              training_image)
-from pegasus_gen.scan_capture import write_capture
+from pegasus_gen.scan.capture import write_capture
+from pegasus_gen.scan.pipeline import (
+    ScanOptions,
+    camera_in_frame,
+    fit_similarity,
+    run_scan,
+    similarity_matrix,
+    training_image,
+)
 
 VIEWS = 60
 PSNR_HELD_OUT_DB = 26.0  # stated bar for the CPU "cpu-small" training at 96 px (measured ~31 dB)

@@ -6,9 +6,9 @@ import os
 
 import cv2
 
-from pegasus_gen.assets import AssetLibrary
-from pegasus_gen.cli import main
-from pegasus_gen.demo_assets import build_demo_library
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.cli.main import main
 
 
 def test_sim_grasp_with_true_poses_puts_every_cup_in_the_basket(tmp_path, capsys):

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from conftest import random_cloud
 from scipy.spatial.transform import Rotation
 
-from conftest import random_cloud
-from pegasus_gen import sh as shlib
-from pegasus_gen.splats import SplatCloud, concatenate, quat_wxyz_to_rotation
+from pegasus_gen.splats import sh as shlib
+from pegasus_gen.splats.cloud import SplatCloud, concatenate, quat_wxyz_to_rotation
 
 
 def random_pose(seed):

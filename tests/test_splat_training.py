@@ -5,16 +5,23 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from pegasus_gen import rasterizer_torch, synthetic
-from pegasus_gen.cameras import intrinsics_from_fov, look_at
-from pegasus_gen.render import render
-from pegasus_gen.splat_training import (SplatParams, SplatTrainConfig, TrainView, densify_and_prune,
-                                        init_from_points, psnr, ssim, train_splats)
-from pegasus_gen.splats import SplatCloud
-
 from conftest import random_cloud
 
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render import differentiable as rasterizer_torch
+from pegasus_gen.render.renderer import render
+from pegasus_gen.scan.training import (
+    SplatParams,
+    SplatTrainConfig,
+    TrainView,
+    densify_and_prune,
+    init_from_points,
+    psnr,
+    ssim,
+    train_splats,
+)
+from pegasus_gen.splats import procedural as synthetic
+from pegasus_gen.splats.cloud import SplatCloud
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -297,7 +304,7 @@ def test_masked_training_makes_the_outside_transparent(box_scene):
     d = rng.normal(size=(100, 3))
     floaters = init_from_points(0.1 * d / np.linalg.norm(d, axis=1, keepdims=True), rng.uniform(0, 1, (100, 3)))
     floaters = floaters.replace(opacity_logits=np.full(100, 1.0))
-    from pegasus_gen.splats import concatenate
+    from pegasus_gen.splats.cloud import concatenate
 
     start = concatenate([init, floaters])
     # a yellow backdrop in the photos: ignoring the masks would grow splats over it (measured alpha 0.92)

@@ -1,0 +1,153 @@
+"""`pegasus train`, `export`, `infer` and `eval`: DOPE trained, exported to ONNX, run and scored."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pegasus_gen.cli import options
+from pegasus_gen.errors import PegasusError
+
+
+def cmd_train(args) -> int:
+    from dope_training.train import TrainConfig, train
+
+    cfg = TrainConfig(data=args.data, object=args.object, out=args.out, split=args.split, variant=args.variant,
+                      size=args.size, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+                      min_visibility=args.min_visibility, augment=not args.no_augment, device=args.device,
+                      amp=not args.no_amp, loader_workers=args.loader_workers, seed=args.seed, vgg19=args.vgg19,
+                      object_size=args.object_size)
+    out = train(cfg, resume=args.resume)
+    if int(os.environ.get("RANK", 0)) == 0:  # under torchrun only rank 0 speaks
+        print(f"trained: {out}/last.pt    loss curve: {out}/loss.png    export: pegasus export {out}/last.pt")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from dope_training.export import export_checkpoint
+
+    out = args.out if args.out is not None else Path(args.checkpoint).with_suffix(".onnx")
+    path, diff = export_checkpoint(args.checkpoint, out, opset=args.opset)
+    print(f"exported {path} (opset {args.opset}); onnxruntime vs torch max abs diff {diff:.2e}")
+    return 0
+
+
+def _read_K(args, width: int, height: int) -> np.ndarray:
+    from pegasus_gen.geometry.cameras import intrinsics
+
+    if args.K is not None:
+        fx, fy, cx, cy = args.K
+        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64)
+    return intrinsics(width, height, args.fov)
+
+
+def cmd_infer(args) -> int:
+    import json
+
+    import cv2
+
+    from dope_training.infer import DopeModel
+    from pegasus_gen.dataset.view import draw_instance
+    from pegasus_gen.io import images
+
+    model = DopeModel(args.model, device=args.device)
+    image = cv2.imread(str(args.image), cv2.IMREAD_COLOR)
+    if image is None:
+        raise PegasusError(f"{args.image}: cannot read the image")
+    image = image[..., ::-1].copy()
+    K = _read_K(args, image.shape[1], image.shape[0])
+    t0 = time.perf_counter()
+    poses = model.estimate(image, K, min_score=args.min_score)
+    ms = 1000 * (time.perf_counter() - t0)
+    out = Path(args.out)
+    overlay = image.copy()
+    obj = model.object
+    for n, pose in enumerate(poses):
+        draw_instance(overlay, K, pose.T, np.array(obj.bbox_min), np.array(obj.bbox_size), None, None,
+                      (255, 60, 200), f"{obj.name} {pose.score:.2f}")
+        for x, y in pose.keypoints[np.isfinite(pose.keypoints).all(1)]:
+            cv2.circle(overlay, (int(round(x)), int(round(y))), 3, (255, 255, 0), -1, cv2.LINE_AA)
+    stem = Path(args.image).stem
+    png = images.write_image(out / f"{stem}_poses.png", overlay)
+    doc = {"image": str(args.image), "model": str(args.model), "backend": model.backend, "object": obj.name,
+           "obj_id": obj.obj_id, "K": K.tolist(), "ms": ms, "instances": [p.to_json() for p in poses]}
+    path = out / f"{stem}_poses.json"
+    path.write_text(json.dumps(doc, indent=1))
+    print(f"{len(poses)} instance(s) of {obj.name!r} in {ms:.0f} ms on {model.backend}")
+    for pose in poses:
+        print(f"  score {pose.score:.2f}  t = {np.round(pose.T[:3, 3], 4).tolist()} m  "
+              f"reprojection {pose.reprojection_error:.1f} px")
+    print(f"overlay: {png}\nposes: {path}")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from dope_training.evaluate import evaluate, write_report
+    from dope_training.infer import DopeModel
+
+    model = DopeModel(args.model, device=args.device)
+    report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
+                      min_score=args.min_score)
+    out = args.out if args.out is not None else Path(args.model).parent / f"eval_{Path(args.data).name}_{args.split}"
+    json_path, png = write_report(report, out)
+    r = report["result"]
+    print(f"{report['object']['name']}: {report['instances']} instances in {report['images']} images, "
+          f"{report['misses']} missed, {report['false_positives']} false positives")
+    print(f"{report['metric']}: AUC(0-10 cm) {r['auc_0_10cm']:.3f}, pass 2/5/10 cm "
+          f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f}")
+    print(f"report: {json_path}    curve: {png}")
+    return 0
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("train", help="train DOPE for one object on BOP datasets (or DOPE/NDDS folders)")
+    p.add_argument("--data", action="append", required=True, help="BOP dataset root or DOPE/NDDS folder (repeatable)")
+    p.add_argument("--object", required=True, help="obj_id or name (BOP), class name (NDDS)")
+    p.add_argument("--out", default="runs/dope", help="output folder (checkpoints, loss curve, belief snapshots)")
+    p.add_argument("--split", default="train_pbr")
+    p.add_argument("--variant", choices=("full", "light"), default="light",
+                   help="full: the original DOPE (GPU); light: 3 narrow stages for CPU")
+    p.add_argument("--epochs", type=int, default=10)
+    p.add_argument("--batch-size", type=int, default=8, help="per process")
+    p.add_argument("--size", type=int, default=0, help="crop size, px (default: full 400, light 320)")
+    p.add_argument("--lr", type=float, default=0.0, help="Adam learning rate (default: full 1e-4, light 1e-3)")
+    p.add_argument("--min-visibility", type=float, default=0.1, help="skip instances seen less than this")
+    p.add_argument("--no-augment", action="store_true", help="nominal-scale crops around the instances only")
+    options.add_device(p)
+    p.add_argument("--no-amp", action="store_true", help="full precision on CUDA")
+    p.add_argument("--loader-workers", type=int, default=2, help="data loading processes per training process")
+    options.add_seed(p)
+    p.add_argument("--vgg19", help="ImageNet VGG19 weights (torchvision vgg19-*.pth); default: torch hub cache")
+    p.add_argument("--object-size", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="model box size in metres (DOPE/NDDS data)")
+    p.add_argument("--resume", action="store_true", help="continue the training in --out (more --epochs)")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("export", help="export a training checkpoint to ONNX and check it against torch")
+    p.add_argument("checkpoint")
+    p.add_argument("--out", help="ONNX file (default: the checkpoint's path with .onnx)")
+    p.add_argument("--opset", type=int, default=17)
+    p.set_defaults(func=cmd_export)
+
+    for name, text in (("infer", "estimate object poses in an image; writes an overlay PNG and JSON"),
+                       ("eval", "ADD/ADD-S of a model on a BOP split; writes a JSON report and a PNG curve")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("--model", required=True, help="ONNX export (onnxruntime) or training checkpoint .pt (torch)")
+        options.add_device(p, default="cpu")
+        p.add_argument("--min-score", type=float, default=0.1, help="lowest centroid belief kept")
+    p = sub.choices["infer"]
+    p.add_argument("--image", required=True)
+    p.add_argument("--K", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="camera intrinsics, px")
+    p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees, when no --K")
+    p.add_argument("--out", default="out/infer")
+    p.set_defaults(func=cmd_infer)
+    p = sub.choices["eval"]
+    p.add_argument("--data", required=True, help="BOP dataset root")
+    p.add_argument("--split", default="train_pbr")
+    p.add_argument("--min-visibility", type=float, default=0.1)
+    p.add_argument("--max-images", type=int, help="per scene")
+    p.add_argument("--out", help="report folder (default: beside the model)")
+    p.set_defaults(func=cmd_eval)

@@ -1,0 +1,93 @@
+"""Flags that several commands share, each defined once, and what they resolve to."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def add_library(p) -> None:
+    """--library: the asset library folder."""
+    p.add_argument("--library", help="asset library folder (default: $PEGASUS_ASSETS or ~/.cache/pegasus/assets)")
+
+
+def add_device(p, default: str = "auto", what: str = "") -> None:
+    """--device auto|cpu|cuda."""
+    p.add_argument("--device", choices=DEVICES, default=default, help=what or None)
+
+
+def add_seed(p) -> None:
+    """--seed: the run's random seed."""
+    p.add_argument("--seed", type=int, default=0)
+
+
+def add_host(p) -> None:
+    """--host: the simulated controller's loopback address."""
+    p.add_argument("--host", default="127.0.0.1", help="loopback address for the simulated controller")
+
+
+def library(args):
+    """The AssetLibrary named by --library (or the default one)."""
+    from pegasus_gen.assets.library import AssetLibrary
+
+    return AssetLibrary(args.library)
+
+
+def add_camera(p) -> None:
+    """Pinhole camera flags: image size, field of view or focal lengths, principal point, eye/target or framing."""
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees (unless --fx)")
+    p.add_argument("--fx", type=float, help="focal length in pixels (fy defaults to fx)")
+    p.add_argument("--fy", type=float)
+    p.add_argument("--cx", type=float, help="principal point (default: image centre)")
+    p.add_argument("--cy", type=float)
+    p.add_argument("--eye", type=float, nargs=3, metavar=("X", "Y", "Z"), help="camera position (world, m)")
+    p.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "Z"), help="point looked at")
+    p.add_argument("--azimuth", type=float, default=-60.0, help="auto-framing azimuth, degrees")
+    p.add_argument("--elevation", type=float, default=35.0, help="auto-framing elevation, degrees")
+
+
+def check_camera(parser, args) -> None:
+    """Refuse impossible camera flags through the parser (exit code 2, one line)."""
+    if args.width <= 0 or args.height <= 0:
+        parser.error(f"--width and --height must be positive, got {args.width} x {args.height}")
+    if not 1.0 <= args.fov <= 179.0:
+        parser.error(f"--fov must be within 1..179 degrees, got {args.fov}")
+    for name in ("fx", "fy"):
+        value = getattr(args, name)
+        if value is not None and value <= 0:
+            parser.error(f"--{name} must be positive, got {value}")
+
+
+def camera(args, points: np.ndarray):
+    """(K [3, 3], T_cam_world [4, 4]) from the camera flags; without --eye the points [N, 3] are framed."""
+    from pegasus_gen.geometry.cameras import frame_points, intrinsics, look_at
+
+    K = intrinsics(args.width, args.height, args.fov, args.fx, args.fy, args.cx, args.cy)
+    if args.eye is not None:
+        target = args.target if args.target is not None else np.median(points, axis=0)
+        T = look_at(args.eye, target)
+    else:
+        T = frame_points(points, K, args.width, args.height, args.azimuth, args.elevation)
+    return K, T
+
+
+def write_render_outputs(out_dir: Path, out) -> list[Path]:
+    """rgb, depth (mm, and coloured), labels and an overview sheet of a RenderOutput as PNGs in out_dir."""
+    from pegasus_gen.io import images
+
+    depth_mm = np.clip(np.round(out.depth * 1000.0), 0, 65535).astype(np.uint16)
+    written = [
+        images.write_image(out_dir / "rgb.png", images.rgb_to_uint8(out.rgb)),
+        images.write_image(out_dir / "depth_mm.png", depth_mm),
+        images.write_image(out_dir / "depth_vis.png", images.colorize_depth(out.depth)),
+        images.write_image(out_dir / "labels.png", images.colorize_labels(out.label)),
+    ]
+    sheet = np.concatenate([images.rgb_to_uint8(out.rgb), images.colorize_depth(out.depth),
+                            images.colorize_labels(out.label)], axis=1)
+    written.append(images.write_image(out_dir / "overview.png", sheet))
+    return written

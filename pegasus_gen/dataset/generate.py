@@ -1,0 +1,372 @@
+"""`pegasus generate`: environments + objects -> physics -> camera trajectories -> renders -> BOP dataset.
+
+Layout (BOP train_pbr style)::
+
+    OUTPUT/camera.json  models/obj_XXXXXX.ply  models/models_info.json
+    OUTPUT/train_pbr/SSSSSS/{rgb,depth,mask,mask_visib}/...  scene_camera.json scene_gt.json scene_gt_info.json
+
+    OUTPUT/train_pbr/SSSSSS/scene_gt_coco.json  (and rgb/IIIIII.json, DOPE/NDDS, with ``dope_json``)
+    OUTPUT/pegasus_config.yaml  (the config the dataset was made with)
+
+Every scene is built in a hidden temporary folder and renamed into place when complete, so a killed
+run never leaves a half scene; ``resume`` skips the scenes already there after checking that the
+stored config matches. Each scene draws from its own random generator seeded by (seed, scene id): the
+same seed gives the same annotations whatever was resumed and however many workers ran. Scenes are
+spread over ``workers`` processes; inside a process, image encoding and writing run on threads while
+the next frame renders.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+from tqdm import tqdm
+
+from pegasus_gen.assets.library import Asset, AssetLibrary
+from pegasus_gen.dataset import bop
+from pegasus_gen.dataset.config import GenerateConfig
+from pegasus_gen.dataset.dope_json import dope_image, dope_object
+from pegasus_gen.dataset.physics import DropResult, drop_objects
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
+from pegasus_gen.io.files import write_atomic
+from pegasus_gen.io.images import rgb_to_uint8, write_image
+from pegasus_gen.render.raycast import MeshRaycaster
+from pegasus_gen.render.renderer import render
+
+SPLIT = "train_pbr"
+CONFIG_FILE = "pegasus_config.yaml"
+# config keys that may differ between a dataset and a run resuming it (they change no annotation)
+RESUMABLE_KEYS = ("output", "library", "device", "workers")
+
+
+def camera_matrix(cfg: GenerateConfig) -> np.ndarray:
+    """K [3, 3] from the camera config (fx/fy when given, else the field of view)."""
+    c = cfg.camera
+    return intrinsics(c.width, c.height, c.fov_deg, c.fx, c.fy, c.cx, c.cy)
+
+
+@dataclass
+class Assets:
+    environments: list[Asset]
+    per_spec: list[Asset]  # the object asset of each entry of cfg.objects, in order
+
+    @property
+    def objects(self) -> dict[int, Asset]:
+        """The distinct object assets by obj_id."""
+        return {a.manifest.obj_id: a for a in self.per_spec}
+
+
+def load_assets(cfg: GenerateConfig) -> Assets:
+    """Every asset the config names, loaded and checked before anything is written."""
+    lib = AssetLibrary(cfg.library)
+    envs = [lib.get(name) for name in cfg.environments]
+    for env in envs:
+        if env.manifest.kind != "environment":
+            raise PegasusError(f"config environments: {env.name} is not an environment asset")
+    per_spec = [lib.get(spec.asset) for spec in cfg.objects]
+    for asset in per_spec:
+        if asset.manifest.kind != "object":
+            raise PegasusError(f"config objects: {asset.name} is not an object asset")
+    return Assets(envs, per_spec)
+
+
+def write_models(out: Path, assets: Assets, cfg: GenerateConfig) -> None:
+    """models/ (PLY in mm, bbox-centred object frames), models_info.json and camera.json."""
+    models = out / "models"
+    info = {}
+    for obj_id, asset in sorted(assets.objects.items()):
+        bop.write_model_ply(models / f"obj_{obj_id:06d}.ply", asset.mesh)
+        info[str(obj_id)] = bop.models_info_entry(asset.mesh, asset.manifest.symmetries_discrete,
+                                                  asset.manifest.symmetries_continuous)
+    _write_json(models / "models_info.json", info)
+    K = camera_matrix(cfg)
+    _write_json(out / "camera.json", {"cx": K[0, 2], "cy": K[1, 2], "depth_scale": cfg.depth_scale,
+                                      "fx": K[0, 0], "fy": K[1, 1], "height": cfg.camera.height,
+                                      "width": cfg.camera.width})
+
+
+def _write_json(path: Path, data) -> None:
+    write_atomic(path, lambda f: f.write((json.dumps(data, indent=2) + "\n").encode()))
+
+
+def _choose_objects(cfg: GenerateConfig, assets: Assets, rng: np.random.Generator) -> list[Asset]:
+    chosen = []
+    for spec, asset in zip(cfg.objects, assets.per_spec):
+        chosen += [asset] * int(rng.integers(spec.count[0], spec.count[1] + 1))
+    while len(chosen) < cfg.min_objects:
+        chosen.append(assets.per_spec[int(rng.integers(len(assets.per_spec)))])
+    return chosen
+
+
+@dataclass
+class ScenePlan:
+    """What a scene holds: its environment, the objects dropped (by instance index), the physics
+    result (rest poses, and for dynamic scenes the poses at each camera frame), and the RNG to go on with."""
+
+    environment: Asset
+    objects: list[Asset]
+    drop: DropResult
+    rng: np.random.Generator
+
+
+def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
+    """Choose and simulate scene ``scene_id``; deterministic in (cfg.seed, scene_id)."""
+    rng = np.random.default_rng([cfg.seed, scene_id])
+    env = assets.environments[int(rng.integers(len(assets.environments)))]
+    objects = _choose_objects(cfg, assets, rng)
+    drop = drop_objects(env, objects, rng, record_fps=cfg.fps if cfg.dynamic else None)
+    return ScenePlan(env, objects, drop, rng)
+
+
+def frame_poses(plan: ScenePlan, im_id: int, dynamic: bool) -> dict[int, np.ndarray]:
+    """T_world_obj per kept instance at frame ``im_id``: the recorded motion in dynamic scenes (then the
+    rest poses once the motion has ended), the rest poses in static ones."""
+    kept = sorted(plan.drop.poses)
+    if dynamic and im_id < len(plan.drop.trajectory):
+        frame = plan.drop.trajectory[im_id][1]
+        return {i: frame[i] for i in kept}
+    return {i: plan.drop.poses[i] for i in kept}
+
+
+BLOCKING_MARGIN = 0.03  # m: the environment may come this close in front of an object's centre (its support)
+CANVAS_MARGIN = 8  # px around an object's projected mesh box: its splats reach a little beyond the mesh
+
+
+def object_depth_canvas(splats, mesh, T_cam_obj: np.ndarray, K_canvas: np.ndarray, T_cam_world: np.ndarray,
+                        width: int, height: int, device: str) -> np.ndarray:
+    """[3H, 3W] z-depth (m) of one placed object rendered alone on the 3x canvas of calc_gt_info.
+
+    Only the window around the object's projected mesh box is rendered (the rest of the canvas is
+    empty anyway), which makes this ~10x cheaper than rendering the whole canvas.
+    """
+    canvas = np.zeros((3 * height, 3 * width), np.float32)
+    pts = np.asarray(mesh.vertices) @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
+    if (pts[:, 2] <= 0.01).any():  # partly behind the camera: render the whole canvas
+        x0, y0, x1, y1 = 0, 0, 3 * width, 3 * height
+    else:
+        uv = pts[:, :2] / pts[:, 2:3] * [K_canvas[0, 0], K_canvas[1, 1]] + [K_canvas[0, 2], K_canvas[1, 2]]
+        x0, y0 = np.maximum(np.floor(uv.min(0)).astype(int) - CANVAS_MARGIN, 0)
+        x1 = min(int(np.ceil(uv[:, 0].max())) + CANVAS_MARGIN + 1, 3 * width)
+        y1 = min(int(np.ceil(uv[:, 1].max())) + CANVAS_MARGIN + 1, 3 * height)
+        if x0 >= x1 or y0 >= y1:
+            return canvas
+    K_window = K_canvas.copy()
+    K_window[0, 2] -= x0
+    K_window[1, 2] -= y0
+    canvas[y0:y1, x0:x1] = render(splats, K_window, T_cam_world, x1 - x0, y1 - y0, device=device).depth
+    return canvas
+
+
+def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> list[np.ndarray]:
+    """T_cam_world per frame: key poses around the objects' centre, interpolated. Key poses must see every
+    object's centre unblocked by the environment, and are redrawn until the environment fills at least
+    ``trajectory.min_view_coverage`` of the image (else the best draw is kept)."""
+    t = cfg.trajectory
+    centres = np.array([pose[:3, 3] for pose in plan.drop.poses.values()])
+    W, H = cfg.camera.width, cfg.camera.height
+    environment = MeshRaycaster(plan.environment.mesh)
+
+    def score(T_cam_world: np.ndarray) -> float:
+        eye = -T_cam_world[:3, :3].T @ T_cam_world[:3, 3]
+        distances = np.linalg.norm(centres - eye, axis=1)
+        blocked = environment.first_hits(eye, (centres - eye) / distances[:, None]) < distances - BLOCKING_MARGIN
+        coverage = environment.view_coverage(K, T_cam_world, W, H) if t.min_view_coverage > 0 else 1.0
+        return coverage - float(blocked.any())  # any unblocked view beats every blocked one
+
+    keys = orbit_key_poses(centres.mean(axis=0), plan.rng, t.key_poses, t.distance, t.elevation_deg,
+                           t.azimuth_span_deg, t.jitter, score=score, min_score=t.min_view_coverage)
+    return interpolate_poses(keys, cfg.frames_per_scene)
+
+
+class _Writer:
+    """Encodes and writes images on threads while the caller renders; ``close`` waits and re-raises."""
+
+    def __init__(self, threads: int = 2):
+        self.pool = ThreadPoolExecutor(threads)
+        self.pending: list[Future] = []
+
+    def image(self, path: Path, image: np.ndarray, jpg_quality: int = 95) -> None:
+        self.pending.append(self.pool.submit(write_image, path, image, jpg_quality))
+
+    def close(self) -> None:
+        try:
+            for f in self.pending:
+                f.result()
+        finally:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: Assets,
+                 on_frame: Callable[[], None] = lambda: None) -> None:
+    """Simulate, render and write one scene into ``scene_dir`` (a fresh folder); ``on_frame`` after each frame."""
+    plan = plan_scene(scene_id, cfg, assets)
+    env, objects, drop = plan.environment, plan.objects, plan.drop
+    kept = sorted(drop.poses)
+    if not kept:
+        raise PegasusError(f"scene {scene_id}: every object left the support of {env.name}")
+    K = camera_matrix(cfg)
+    cams = camera_trajectory(plan, cfg, K)
+    W, H = cfg.camera.width, cfg.camera.height
+    K_canvas = K.copy()
+    K_canvas[0, 2] += W
+    K_canvas[1, 2] += H
+    for sub in ("rgb", "depth", "mask", "mask_visib"):
+        (scene_dir / sub).mkdir(parents=True)
+    scene_gt, scene_camera, scene_info = {}, {}, {}
+    coco_images, coco_annotations = [], []
+    placed = None
+    writer = _Writer()
+    try:
+        for im_id, T_cam_world in enumerate(cams):
+            poses = frame_poses(plan, im_id, cfg.dynamic)
+            if placed is None or cfg.dynamic:  # static scenes place their objects once
+                placed = [objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
+            out = render([env.splats, *placed], K, T_cam_world, W, H, device=cfg.device)
+            rgb_name = f"rgb/{im_id:06d}.{cfg.image_format}"
+            writer.image(scene_dir / rgb_name, rgb_to_uint8(out.rgb), cfg.jpg_quality)
+            writer.image(scene_dir / "depth" / f"{im_id:06d}.png", bop.depth_to_png_values(out.depth, cfg.depth_scale))
+            scene_camera[str(im_id)] = bop.camera_entry(K, T_cam_world, cfg.depth_scale)
+            coco_images.append({"id": im_id, "file_name": rgb_name, "width": W, "height": H})
+            gts, infos, dope_objects = [], [], []
+            for gt_idx, i in enumerate(kept):
+                asset = objects[i]
+                T_cam_obj = T_cam_world @ poses[i]
+                canvas = object_depth_canvas(placed[gt_idx], asset.mesh, T_cam_obj, K_canvas, T_cam_world, W, H,
+                                             cfg.device)
+                info, mask, visible = bop.gt_info_entry(canvas, out.depth, K, cfg.visib_delta)
+                name = f"{im_id:06d}_{gt_idx:06d}.png"
+                writer.image(scene_dir / "mask" / name, mask.astype(np.uint8) * 255)
+                writer.image(scene_dir / "mask_visib" / name, visible.astype(np.uint8) * 255)
+                gts.append(bop.pose_entry(T_cam_obj, asset.manifest.obj_id))
+                infos.append(info)
+                coco_annotations.append(bop.coco_annotation(len(coco_annotations), im_id, asset.manifest.obj_id,
+                                                            visible, info))
+                if cfg.dope_json:
+                    lo, hi = asset.mesh.bounds
+                    dope_objects.append(dope_object(asset.name, asset.manifest.obj_id, T_cam_obj, lo, hi - lo, K,
+                                                    info["visib_fract"]))
+            scene_gt[str(im_id)] = gts
+            scene_info[str(im_id)] = infos
+            if cfg.dope_json:
+                _write_json(scene_dir / "rgb" / f"{im_id:06d}.json", dope_image(K, W, H, dope_objects))
+            on_frame()
+    finally:
+        writer.close()
+    categories = {a.manifest.obj_id: a.name for a in objects}
+    _write_json(scene_dir / "scene_gt.json", scene_gt)
+    _write_json(scene_dir / "scene_camera.json", scene_camera)
+    _write_json(scene_dir / "scene_gt_info.json", scene_info)
+    _write_json(scene_dir / "scene_gt_coco.json", bop.coco_dataset(categories, coco_images, coco_annotations))
+
+
+def build_scene(split: Path, scene_id: int, cfg: GenerateConfig, assets: Assets,
+                on_frame: Callable[[], None] = lambda: None) -> None:
+    """Scene ``scene_id`` built in ``split/.SSSSSS.tmp`` and renamed to ``split/SSSSSS`` once complete."""
+    final = split / f"{scene_id:06d}"
+    tmp = split / f".{scene_id:06d}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)  # left over by a killed run
+    try:
+        render_scene(tmp, scene_id, cfg, assets, on_frame)
+        tmp.rename(final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _stored_config(cfg: GenerateConfig) -> dict:
+    data = cfg.model_dump(mode="json")
+    for key in RESUMABLE_KEYS:
+        data.pop(key, None)
+    return data
+
+
+def _differences(a, b, prefix="") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [d for k in sorted(set(a) | set(b)) for d in _differences(a.get(k), b.get(k), f"{prefix}{k}.")]
+    return [prefix.rstrip(".")] if a != b else []
+
+
+def prepare_output(out: Path, cfg: GenerateConfig, resume: bool) -> None:
+    """Refuse to mix datasets: a non-empty ``out`` needs ``resume`` and the config it was made with
+    (keys in RESUMABLE_KEYS excepted). Records the config in a new dataset."""
+    record = out / CONFIG_FILE
+    if out.exists() and any(out.iterdir()):
+        if not resume:
+            raise PegasusError(f"{out} is not empty; pass --resume to continue the dataset there, "
+                               "or choose another output")
+        if not record.is_file():
+            raise PegasusError(f"{out}: no {CONFIG_FILE}, so this is not a dataset made by pegasus generate; "
+                               "choose another output")
+        stored = yaml.safe_load(record.read_text())
+        changed = _differences(stored, _stored_config(cfg))
+        if changed:
+            raise PegasusError(f"{out} was made with a different config ({', '.join(changed)} differ); "
+                               "resume with the same config or choose another output")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomic(record, lambda f: f.write(yaml.safe_dump(_stored_config(cfg), sort_keys=True).encode()))
+
+
+_worker_assets: Assets | None = None
+
+
+def _init_worker(cfg: GenerateConfig) -> None:
+    """Worker process start: share the CPU cores between the workers and load the assets once."""
+    global _worker_assets
+    import numba
+
+    numba.set_num_threads(max(1, (os.cpu_count() or 1) // cfg.workers))
+    _worker_assets = load_assets(cfg)
+
+
+def _worker_scene(split: Path, scene_id: int, cfg: GenerateConfig, frames_done) -> None:
+    build_scene(split, scene_id, cfg, _worker_assets, lambda: frames_done.put(1))
+
+
+def _build_in_processes(split: Path, todo: list[int], cfg: GenerateConfig, bar: tqdm) -> None:
+    """``todo`` scenes spread over ``cfg.workers`` processes; ``bar`` advances per written frame."""
+    context = multiprocessing.get_context("spawn")  # forked numba/OpenMP thread pools are not safe
+    with context.Manager() as manager:
+        frames_done = manager.Queue()
+        with ProcessPoolExecutor(cfg.workers, mp_context=context, initializer=_init_worker,
+                                 initargs=(cfg,)) as pool:
+            running = {pool.submit(_worker_scene, split, s, cfg, frames_done) for s in todo}
+            try:
+                while running:
+                    done, running = wait(running, timeout=0.25, return_when=FIRST_COMPLETED)
+                    while not frames_done.empty():
+                        bar.update(frames_done.get())
+                    for future in done:
+                        future.result()  # a worker's error ends the run
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+
+
+def generate(cfg: GenerateConfig, resume: bool = False) -> Path:
+    """Write the dataset described by ``cfg``; returns the output folder. With ``resume`` the scenes
+    already in a matching dataset are kept and only the missing ones are made."""
+    assets = load_assets(cfg)  # all checks before the output folder is touched
+    out = Path(cfg.output)
+    prepare_output(out, cfg, resume)
+    split = out / SPLIT
+    split.mkdir(exist_ok=True)
+    write_models(out, assets, cfg)
+    todo = [s for s in range(cfg.scenes) if not (split / f"{s:06d}").is_dir()]
+    with tqdm(total=len(todo) * cfg.frames_per_scene, desc="generate", unit="frame", smoothing=0.1) as bar:
+        if cfg.workers > 1 and len(todo) > 1:
+            _build_in_processes(split, todo, cfg, bar)
+        else:
+            for scene_id in todo:
+                build_scene(split, scene_id, cfg, assets, lambda: bar.update(1))
+    return out
