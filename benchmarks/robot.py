@@ -20,7 +20,8 @@ from pegasus_gen.assets.library import AssetLibrary
 from robot_bridge.bridge import UR5, BridgeConfig, GripperConfig
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.pick import pick_and_place
-from robot_bridge.sim_controller import SimControllerProcess, sim_object_pose
+from robot_bridge.sim.client import sim_object_pose
+from robot_bridge.sim_controller import SimControllerProcess
 
 HOST = "127.0.0.211"
 BASKET = np.array([-0.15, -0.45, 0.0])

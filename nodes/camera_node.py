@@ -80,7 +80,7 @@ class SimSource:
     def __init__(self, host: str, library: str, environment: str, T_world_base, T_world_cam, width: int,
                  height: int, K: np.ndarray, device: str):
         from pegasus_gen.assets.library import AssetLibrary
-        from robot_bridge.sim_controller import dashboard_command, sim_object_pose
+        from robot_bridge.sim.client import dashboard_command, sim_object_pose
 
         self.command = lambda text: dashboard_command(host, text)
         self.object_pose = lambda name: sim_object_pose(host, name)

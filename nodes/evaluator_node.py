@@ -30,7 +30,7 @@ from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.view import draw_instance
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.images import write_image
-from robot_bridge.sim_controller import dashboard_command, sim_object_pose
+from robot_bridge.sim.client import dashboard_command, sim_object_pose
 
 
 class EvaluatorNode(Node):

@@ -38,13 +38,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pegasus_gen.errors import PegasusError
-from robot_bridge import rtde_protocol as rp
 from robot_bridge.kinematics import fk, matrix_to_pose, nearest_ik, pose_to_matrix
-from robot_bridge.sim_world import HOME_Q, MotionError, RobotSim
+from robot_bridge.sim import rtde_protocol as rp
+from robot_bridge.sim.client import DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORTS, dashboard_command
+from robot_bridge.sim.world import HOME_Q, MotionError, RobotSim
 
 log = logging.getLogger(__name__)
 
-DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORTS = 29999, 30004, (30001, 30002, 30003)
 CONTROLLER_VERSION = (5, 11, 1, 108318)
 POLYSCOPE_VERSION = "URSoftware 5.11.1.108318 (Mar 17 2021)"
 ROBOT_MODE_RUNNING, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP = 7, 1, 3
@@ -548,24 +548,6 @@ class _ControlProgram:
             return False
         c.record(f"command {cmd} not simulated: answered done")
         return True
-
-
-def dashboard_command(host: str, text: str, timeout: float = 5.0) -> str:
-    """Send one dashboard command to the controller at ``host`` and return its answer line."""
-    with socket.create_connection((host, DASHBOARD_PORT), timeout=timeout) as conn:
-        reader = conn.makefile("r")
-        reader.readline()  # welcome
-        conn.sendall((text + "\n").encode())
-        return reader.readline().strip()
-
-
-def sim_object_pose(host: str, name: str, timeout: float = 5.0) -> np.ndarray:
-    """T_base_obj [4, 4] (m) of the simulated object ``name`` (the dashboard's ``sim pose NAME``)."""
-    values = [float(v) for v in dashboard_command(host, f"sim pose {name}", timeout).split()]
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
-    T[:3, 3] = values[:3]
-    return T
 
 
 class SimControllerProcess:

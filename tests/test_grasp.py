@@ -15,8 +15,9 @@ from robot_bridge.grasp import plan_grasp
 from robot_bridge.kinematics import fk
 from robot_bridge.pick import pick_and_place
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
-from robot_bridge.sim_controller import SimControllerProcess, sim_object_pose
-from robot_bridge.sim_world import HOME_Q
+from robot_bridge.sim.client import sim_object_pose
+from robot_bridge.sim.world import HOME_Q
+from robot_bridge.sim_controller import SimControllerProcess
 
 CUP_MIN, CUP_SIZE = np.array([-0.047, -0.047, -0.0525]), np.array([0.094, 0.094, 0.105])
 BASKET = np.array([-0.15, -0.45, 0.0])
