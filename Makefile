@@ -8,13 +8,16 @@ STAMP := $(VENV)/.installed
 # System libraries the Python wheels load at run time (open3d needs libusb; numba/torch libgomp).
 APT_PACKAGES := libusb-1.0-0 libgomp1
 
-.PHONY: test test-all demo bench setup system-deps clean
+.PHONY: test test-all lint demo bench setup system-deps clean
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -m ""
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
 
 demo: $(STAMP)
 	rm -rf out/demo

@@ -21,7 +21,7 @@ from robot_bridge.bridge import UR5, BridgeConfig, GripperConfig
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.pick import pick_and_place
 from robot_bridge.sim.client import sim_object_pose
-from robot_bridge.sim_controller import SimControllerProcess
+from robot_bridge.sim.process import SimControllerProcess
 
 HOST = "127.0.0.211"
 BASKET = np.array([-0.15, -0.45, 0.0])
@@ -48,8 +48,8 @@ def main() -> None:
                 q = Rotation.from_euler("z", yaw).as_quat()
                 sim.command(f"sim add cup {cup} {x} {y} {-box_min[2] + 0.002} {q[0]} {q[1]} {q[2]} {q[3]}")
                 time.sleep(0.5 / args.time_scale)  # settles
-                plan = plan_grasp(sim_object_pose(HOST, "cup"), np.eye(4), box_min, box_size, BASKET[:2], 0.006, robot.tcp_pose(),
-                                  axis=[0, 0, 1], envelope=config.envelope)
+                plan = plan_grasp(sim_object_pose(HOST, "cup"), np.eye(4), box_min, box_size, BASKET[:2], 0.006,
+                                  robot.tcp_pose(), axis=[0, 0, 1], envelope=config.envelope)
                 t = time.perf_counter()
                 result = pick_and_place(robot, plan)
                 cycles.append(time.perf_counter() - t)

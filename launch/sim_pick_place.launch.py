@@ -30,7 +30,8 @@ BASKET = [-0.25, -0.28, 0.0]
 def generate_launch_description():
     arg = LaunchConfiguration
     return LaunchDescription([
-        DeclareLaunchArgument("model", default_value="", description="DOPE ONNX export (empty with pose_source:=ground_truth)"),
+        DeclareLaunchArgument("model", default_value="",
+                              description="DOPE ONNX export (empty with pose_source:=ground_truth)"),
         DeclareLaunchArgument("pose_source", default_value="dope", choices=["dope", "ground_truth"]),
         DeclareLaunchArgument("objects", default_value="noodle_cup_red", description="asset names, comma-separated"),
         DeclareLaunchArgument("attempts", default_value="20"),

@@ -142,7 +142,8 @@ class CameraNode(Node):
     def camera_matrix(self, width: int, height: int) -> np.ndarray:
         p = self.params
         if p["fx"] > 0:
-            return np.array([[p["fx"], 0, p["cx"] or (width - 1) / 2], [0, p["fy"] or p["fx"], p["cy"] or (height - 1) / 2],
+            return np.array([[p["fx"], 0, p["cx"] or (width - 1) / 2],
+                             [0, p["fy"] or p["fx"], p["cy"] or (height - 1) / 2],
                              [0, 0, 1]])
         K = self.source.intrinsics(width, height) if self.source is not None else None
         if K is not None:

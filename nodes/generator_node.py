@@ -2,9 +2,9 @@
 
 Parameters: ``config`` (YAML path, may be empty), ``output``, ``scenes``, ``frames_per_scene``, ``width``,
 ``height``, ``device``, ``library``, ``environments`` and ``objects`` (YAML text, as the config keys) (empty /
-0: the config's), ``overrides`` (more key=value, as the CLI takes), ``resume``. Publishes ``generator/progress`` (String JSON: frames written, frames planned, state) once a
-second and, when the dataset is complete, its path on ``dataset`` (String, transient-local so late
-subscribers get it).
+0: the config's), ``overrides`` (more key=value, as the CLI takes), ``resume``. Publishes
+``generator/progress`` (String JSON: frames written, frames planned, state) once a second and, when the
+dataset is complete, its path on ``dataset`` (String, transient-local so late subscribers get it).
 """
 
 from __future__ import annotations

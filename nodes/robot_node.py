@@ -5,9 +5,9 @@ States: idle -> planning -> moving -> idle (or failed); each change is published
 (std_msgs/String, JSON: state, attempt, detail). Parameters: ``host``; ``hand_eye`` (T_base_cam, 16 numbers
 row-major); ``basket`` (floor centre x y z, base frame); ``bbox_min``/``bbox_size`` (the object's model
 box, m) and ``symmetry_axis`` (object frame; [] for none); ``execute`` = pick (the whole pick-and-place)
-or pregrasp (stop above the object); ``home`` (joints, rad: each attempt starts there); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per
-message on ``attempt``, as evaluator_node sends them; the status carries that attempt's number). Poses
-arriving while it moves are ignored.
+or pregrasp (stop above the object); ``home`` (joints, rad: each attempt starts there); ``speed``; ``dry_run``;
+``wait_for_attempt`` (act only once per message on ``attempt``, as evaluator_node sends them; the status
+carries that attempt's number). Poses arriving while it moves are ignored.
 """
 
 from __future__ import annotations

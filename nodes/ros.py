@@ -56,5 +56,6 @@ def run_node(node_class, args=None) -> None:
         rclpy.shutdown()
 
 
-__all__ = ["run_node", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs",
+__all__ = ["run_node", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor",
+           "Parameter", "msgs",
            "REAL_ROS"]

@@ -1,11 +1,11 @@
 """sim_controller_node: starts the simulated UR controller (a child process, see
-``robot_bridge.sim_controller``) for the launch's lifetime. Parameters: ``host``, ``time_scale``, ``basket``
+``robot_bridge.sim.process``) for the launch's lifetime. Parameters: ``host``, ``time_scale``, ``basket``
 (floor centre, base frame; [] for none), ``log``."""
 
 from __future__ import annotations
 
 from nodes.ros import Node, run_node
-from robot_bridge.sim_controller import SimControllerProcess
+from robot_bridge.sim.process import SimControllerProcess
 
 
 class SimControllerNode(Node):

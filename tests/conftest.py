@@ -25,17 +25,24 @@ def rng():
 
 
 @pytest.fixture(scope="session")
-def dope_dataset(tmp_path_factory):
-    """A tiny BOP dataset for DOPE: 4 frames (320x240) of 3 red noodle cups seen from 0.28-0.32 m."""
+def library(tmp_path_factory):
+    """The built-in demo library (8 objects, 3 environments), built once per test session; tests only read it."""
     from pegasus_gen.assets.demo import build_demo_library
     from pegasus_gen.assets.library import AssetLibrary
-    from pegasus_gen.dataset.config import load_config
-    from pegasus_gen.dataset.generate import generate
 
     lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
     build_demo_library(lib)
+    return lib
+
+
+@pytest.fixture(scope="session")
+def dope_dataset(library, tmp_path_factory):
+    """A tiny BOP dataset for DOPE: 4 frames (320x240) of 3 red noodle cups seen from 0.28-0.32 m."""
+    from pegasus_gen.dataset.config import load_config
+    from pegasus_gen.dataset.generate import generate
+
     out = tmp_path_factory.mktemp("ds") / "ds"
-    return generate(load_config(None, [f"output={out}", f"library={lib.root}", "scenes=1", "frames_per_scene=4",
+    return generate(load_config(None, [f"output={out}", f"library={library.root}", "scenes=1", "frames_per_scene=4",
                                        "camera.width=320", "camera.height=240", "device=cpu",
                                        "environments=[wooden_table]", "objects=[{asset: 1, count: [1, 1]}]",
                                        "trajectory.distance=[0.28, 0.32]"]))

@@ -24,7 +24,8 @@ def test_pose_and_camera_entries_are_in_millimetres_row_major():
     assert np.allclose(e["cam_t_m2c"], [100, -200, 750])
     K = np.array([[600.0, 0, 319.5], [0, 610.0, 239.5], [0, 0, 1]])
     c = camera_entry(K, T, 0.1)
-    assert c["cam_K"] == K.ravel().tolist() and c["depth_scale"] == 0.1 and np.allclose(c["cam_t_w2c"], [100, -200, 750])
+    assert c["cam_K"] == K.ravel().tolist() and c["depth_scale"] == 0.1
+    assert np.allclose(c["cam_t_w2c"], [100, -200, 750])
 
 
 def test_depth_png_values_follow_depth_scale():

@@ -8,7 +8,8 @@ from pegasus_gen.errors import PegasusError
 
 def test_defaults_and_overrides(tmp_path):
     path = tmp_path / "gen.yaml"
-    path.write_text("scenes: 3\ncamera:\n  width: 320\n  height: 240\nobjects:\n  - {asset: noodle_cup_red, count: [1, 2]}\n")
+    path.write_text("scenes: 3\ncamera:\n  width: 320\n  height: 240\n"
+                    "objects:\n  - {asset: noodle_cup_red, count: [1, 2]}\n")
     cfg = load_config(path, ["camera.fov_deg=45", "dynamic=true", "trajectory.distance=[0.3, 0.5]"])
     assert cfg.scenes == 3 and cfg.camera.width == 320 and cfg.camera.fov_deg == 45 and cfg.dynamic
     assert cfg.trajectory.distance == (0.3, 0.5) and cfg.objects[0].count == (1, 2)

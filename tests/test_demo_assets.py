@@ -7,17 +7,9 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from pegasus_gen.assets.demo import build_demo_library
-from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.renderer import render
 from pegasus_gen.render.silhouette import mesh_silhouette
-
-
-@pytest.fixture(scope="module")
-def library(tmp_path_factory):
-    lib = AssetLibrary(tmp_path_factory.mktemp("demo_lib"))
-    build_demo_library(lib)
-    return lib
 
 
 def test_contents(library):

@@ -9,8 +9,6 @@ import pytest
 
 from dope_training.data import Augment, DopeDataset, Sample, load_bop
 from dope_training.targets import cell_centres, make_targets
-from pegasus_gen.assets.demo import build_demo_library
-from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 from pegasus_gen.errors import PegasusError
@@ -39,11 +37,9 @@ def test_belief_peaks_on_the_keypoint_and_affinities_point_to_the_centroid():
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
-    build_demo_library(lib)
+def dataset(library, tmp_path_factory):
     out = tmp_path_factory.mktemp("ds") / "ds"
-    return generate(load_config(None, [f"output={out}", f"library={lib.root}", "scenes=1", "frames_per_scene=2",
+    return generate(load_config(None, [f"output={out}", f"library={library.root}", "scenes=1", "frames_per_scene=2",
                                        "camera.width=320", "camera.height=240", "device=cpu",
                                        "environments=[wooden_table]",
                                        "objects=[{asset: 1, count: [1, 1]}, {asset: 7, count: [1, 2]}]"]))

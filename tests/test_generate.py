@@ -10,24 +10,16 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from pegasus_gen.assets.demo import build_demo_library
-from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 from pegasus_gen.errors import PegasusError
 
 
-@pytest.fixture(scope="module")
-def library(tmp_path_factory):
-    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
-    build_demo_library(lib)
-    return lib
-
-
 def config(library, out, *extra):
     return load_config(None, [f"output={out}", f"library={library.root}", "scenes=2", "frames_per_scene=2",
                               "camera.width=320", "camera.height=240", "device=cpu", "environments=[wooden_table]",
-                              "objects=[{asset: 1, count: [1, 1]}, {asset: 7, count: [1, 1]}, {asset: 8, count: [0, 1]}]",
+                              "objects=[{asset: 1, count: [1, 1]}, {asset: 7, count: [1, 1]},"
+                              " {asset: 8, count: [0, 1]}]",
                               *extra])
 
 

@@ -16,8 +16,8 @@ from robot_bridge.kinematics import fk
 from robot_bridge.pick import pick_and_place
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
 from robot_bridge.sim.client import sim_object_pose
+from robot_bridge.sim.process import SimControllerProcess
 from robot_bridge.sim.world import HOME_Q
-from robot_bridge.sim_controller import SimControllerProcess
 
 CUP_MIN, CUP_SIZE = np.array([-0.047, -0.047, -0.0525]), np.array([0.094, 0.094, 0.105])
 BASKET = np.array([-0.15, -0.45, 0.0])
@@ -95,7 +95,8 @@ def test_twenty_cup_picks_with_the_real_client_land_in_the_basket(cup_urdf):
                 q = Rotation.from_euler("z", yaw).as_quat()
                 sim.command(f"sim add cup {cup_urdf} {x} {y} {-CUP_MIN[2] + 0.002} {q[0]} {q[1]} {q[2]} {q[3]}")
                 time.sleep(0.15)  # settles (at 4x)
-                T_cam_obj = np.linalg.inv(T_base_cam) @ sim_object_pose(host, "cup")  # what pose estimation would report
+                # what pose estimation would report
+                T_cam_obj = np.linalg.inv(T_base_cam) @ sim_object_pose(host, "cup")
                 plan = plan_grasp(T_cam_obj, T_base_cam, CUP_MIN, CUP_SIZE, BASKET[:2], 0.006, robot.tcp_pose(),
                                   axis=[0, 0, 1], envelope=config.envelope)
                 result = pick_and_place(robot, plan)

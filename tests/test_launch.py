@@ -59,13 +59,8 @@ def test_bad_launch_arguments_are_clear_errors(launch_file, tmp_path, capsys):
     assert "no images" in capsys.readouterr().err
 
 
-def test_generate_train_deploy_launch_runs_the_whole_loop(tmp_path, monkeypatch):
-    from pegasus_gen.assets.demo import build_demo_library
-    from pegasus_gen.assets.library import AssetLibrary
-
-    lib = AssetLibrary(tmp_path / "lib")
-    build_demo_library(lib)
-    monkeypatch.setenv("PEGASUS_ASSETS", str(lib.root))
+def test_generate_train_deploy_launch_runs_the_whole_loop(library, tmp_path, monkeypatch):
+    monkeypatch.setenv("PEGASUS_ASSETS", str(library.root))
     out = tmp_path / "loop"
     nodes = run("launch/generate_train_deploy.launch.py",
                 [f"output:={out / 'ds'}", f"run:={out / 'run'}", "scenes:=1", "frames:=3", "width:=160",

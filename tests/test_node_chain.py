@@ -23,8 +23,8 @@ from pegasus_gen.geometry.cuboid import cuboid_points
 from robot_bridge.bridge import UR5, BridgeConfig
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.kinematics import fk
+from robot_bridge.sim.process import SimControllerProcess
 from robot_bridge.sim.world import HOME_Q
-from robot_bridge.sim_controller import SimControllerProcess
 from robot_bridge.ur5_urdf import TCP_Z
 
 pytestmark = pytest.mark.skipif(REAL_ROS, reason="runs the nodes on the stand-in layer")

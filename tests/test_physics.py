@@ -4,16 +4,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from pegasus_gen.assets.demo import build_demo_library
-from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.physics import PhysicsParams, World, drop_objects, random_quat_xyzw
-
-
-@pytest.fixture(scope="module")
-def library(tmp_path_factory):
-    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
-    build_demo_library(lib)
-    return lib
 
 
 def test_random_quaternions_are_uniform():

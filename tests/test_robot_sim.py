@@ -17,8 +17,8 @@ from scipy.spatial.transform import Rotation
 from robot_bridge.bridge import UR5, BridgeConfig, RobotConnectionError, RobotError
 from robot_bridge.kinematics import fk, pose_to_matrix
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
+from robot_bridge.sim.process import SimControllerProcess
 from robot_bridge.sim.world import HOME_Q
-from robot_bridge.sim_controller import SimControllerProcess
 from robot_bridge.ur5_urdf import GRIPPER_STROKE, TCP_Z
 
 _hosts = (f"127.0.{os.getpid() % 200 + 20}.{n}" for n in itertools.count(2))

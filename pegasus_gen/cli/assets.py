@@ -80,7 +80,8 @@ def add_commands(sub) -> None:
     p.add_argument("--out", default="out/assets", help="preview folder")
     options.add_device(p)
     p.set_defaults(func=cmd_show)
-    for verb, what in (("import-splat", "a trained 3DGS PLY"), ("import-mesh", "a mesh (OBJ + texture, PLY, STL, GLB)")):
+    for verb, what in (("import-splat", "a trained 3DGS PLY"),
+                       ("import-mesh", "a mesh (OBJ + texture, PLY, STL, GLB)")):
         p = asub.add_parser(verb, help=f"import {what} as an asset")
         p.add_argument("file")
         p.add_argument("--name", required=True)

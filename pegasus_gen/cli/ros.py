@@ -41,13 +41,14 @@ def cmd_sim_grasp(args) -> int:
 def add_commands(sub) -> None:
     from nodes.launch import installed_launch_files
 
-    p = sub.add_parser("launch", help="run a ROS 2-style launch file without ROS: pegasus launch FILE [name:=value ...]",
+    p = sub.add_parser("launch", help="run a ROS 2-style launch file without ROS: pegasus launch FILE [name:=value]",
                        epilog=f"installed launch files: {', '.join(installed_launch_files())}")
     p.add_argument("file", help="a *.launch.py file, or the name of an installed one")
     p.add_argument("arguments", nargs="*", metavar="name:=value")
     p.set_defaults(func=cmd_launch)
 
-    p = sub.add_parser("sim-grasp", help="closed-loop grasp evaluation in the simulated cell (sim_pick_place.launch.py)")
+    p = sub.add_parser("sim-grasp",
+                       help="closed-loop grasp evaluation in the simulated cell (sim_pick_place.launch.py)")
     p.add_argument("--model", help="DOPE ONNX export")
     p.add_argument("--ground-truth", action="store_true", help="drive the robot with the true poses (grasping alone)")
     p.add_argument("--attempts", type=int, default=20)

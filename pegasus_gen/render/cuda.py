@@ -1,4 +1,5 @@
-"""gsplat CUDA backend of :func:`pegasus_gen.render.renderer.render` (needs torch with CUDA and ``pip install '.[cuda]'``).
+"""gsplat CUDA backend of :func:`pegasus_gen.render.renderer.render` (needs torch with CUDA and
+``pip install '.[cuda]'``).
 
 Colour comes from gsplat's own SH evaluation (per part, so parts may differ in SH degree); the
 instance labels ride along as one-hot feature channels through the same blend, and depth as gsplat's

@@ -217,7 +217,8 @@ class RobotSim:
                                          linkMasses=[0] * 5, linkCollisionShapeIndices=shapes,
                                          linkVisualShapeIndices=[-1] * 5,
                                          linkPositions=[list(o) for _, o in parts],
-                                         linkOrientations=[[0, 0, 0, 1]] * 5, linkInertialFramePositions=[[0, 0, 0]] * 5,
+                                         linkOrientations=[[0, 0, 0, 1]] * 5,
+                                         linkInertialFramePositions=[[0, 0, 0]] * 5,
                                          linkInertialFrameOrientations=[[0, 0, 0, 1]] * 5, linkParentIndices=[0] * 5,
                                          linkJointTypes=[pb.JOINT_FIXED] * 5, linkJointAxis=[[0, 0, 1]] * 5,
                                          physicsClientId=self.client)

@@ -8,8 +8,6 @@ import cv2
 import numpy as np
 import pytest
 
-from pegasus_gen.assets.demo import build_demo_library
-from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.cli.main import main
 from pegasus_gen.dataset.bop import ray_lengths
 from pegasus_gen.dataset.config import load_config
@@ -22,19 +20,13 @@ W, H = 320, 240
 
 
 @pytest.fixture(scope="module")
-def library(tmp_path_factory):
-    lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
-    build_demo_library(lib)
-    return lib
-
-
-@pytest.fixture(scope="module")
 def dataset(library, tmp_path_factory):
     out = tmp_path_factory.mktemp("ds") / "ds"
     cfg = load_config(None, [f"output={out}", f"library={library.root}", "scenes=1", "frames_per_scene=3",
                              f"camera.width={W}", f"camera.height={H}", "device=cpu", "dope_json=true",
                              "environments=[wooden_table]",
-                             "objects=[{asset: 1, count: [1, 1]}, {asset: 5, count: [1, 1]}, {asset: 7, count: [1, 1]}]"])
+                             "objects=[{asset: 1, count: [1, 1]}, {asset: 5, count: [1, 1]},"
+                             " {asset: 7, count: [1, 1]}]"])
     return generate(cfg)
 
 
@@ -95,7 +87,8 @@ def test_gt_info_equals_a_recomputation_from_the_written_files(dataset, library)
         cam = cams[im_id]
         K = np.array(cam["cam_K"]).reshape(3, 3)
         T_cam_world = pose(cam["cam_R_w2c"], cam["cam_t_w2c"])
-        depth_m = cv2.imread(str(scene / "depth" / f"{int(im_id):06d}.png"), cv2.IMREAD_UNCHANGED) * cam["depth_scale"] / 1000
+        depth_png = cv2.imread(str(scene / "depth" / f"{int(im_id):06d}.png"), cv2.IMREAD_UNCHANGED)
+        depth_m = depth_png * cam["depth_scale"] / 1000
         K3 = K.copy()
         K3[:2, 2] += [W, H]
         for gt_idx, (entry, info) in enumerate(zip(entries, infos[im_id])):
@@ -107,7 +100,8 @@ def test_gt_info_equals_a_recomputation_from_the_written_files(dataset, library)
             visible = (obj > 0) & ((obj * rays - depth_m * rays <= 0.015) | (depth_m == 0))
             ys, xs = np.nonzero(canvas > 0)
             assert abs(info["px_count_all"] - len(xs)) <= 2
-            assert np.abs(np.array(info["bbox_obj"]) - [xs.min() - W, ys.min() - H, np.ptp(xs) + 1, np.ptp(ys) + 1]).max() <= 1
+            box = [xs.min() - W, ys.min() - H, np.ptp(xs) + 1, np.ptp(ys) + 1]
+            assert np.abs(np.array(info["bbox_obj"]) - box).max() <= 1
             written = cv2.imread(str(scene / "mask_visib" / f"{int(im_id):06d}_{gt_idx:06d}.png"), 0) > 0
             assert (written != visible).sum() <= max(2, 0.005 * visible.sum())  # depth PNG rounding at delta
             assert abs(info["px_count_visib"] - visible.sum()) <= max(2, 0.005 * visible.sum())

@@ -1,0 +1,227 @@
+"""The simulated UR controller's script ports (30001-30003) and its control-script emulator.
+
+Text sent to a script port is a program. ur-rtde's control script (``def rtde_control():``) is not interpreted
+line by line: ``ControlProgram`` emulates what it does over the RTDE registers (signal ready / done in
+output_int_register_0, async progress in output_int_register_2, commands in input_int_register_0 with arguments
+in input_double_register_0.., register offset 0 or 24 as the script's injection says; async progress as ur-rtde
+1.6 encodes it) for the commands of ``Command``. Other commands (speed_stop 15, servo_stop 16, ...) are logged and
+answered done, so the client does not hang. A bare ``stopl``/``stopj``/``halt`` line stops the arm.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+import socket
+
+import numpy as np
+
+from robot_bridge.kinematics import fk, matrix_to_pose, nearest_ik, pose_to_matrix
+from robot_bridge.sim.world import MotionError
+
+READY, DONE = 1, 2  # what the script signals in output_int_register_0
+# the commands ur-rtde 1.6's script serves in its realtime thread ("simply process and signal ready"): not simulated
+REALTIME_COMMANDS = {24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71}
+
+
+class Command(enum.IntEnum):
+    """ur-rtde's control-script command numbers (input_int_register_0) that the emulator knows, as ur-rtde
+    names them."""
+
+    NO_CMD = 0
+    MOVEJ = 1  # target q [0..5] (rad), speed [6], acceleration [7], async flag int 1
+    MOVEL = 3  # target pose [0..5] (m, axis-angle rad), speed [6], acceleration [7], async flag int 1
+    SET_TCP = 29  # TCP offset pose [0..5]
+    GET_INVERSE_KINEMATICS_ARGS = 30  # pose [0..5], qnear [6..11] -> q in the output doubles
+    PROTECTIVE_STOP = 31
+    STOPL = 33  # deceleration [0], async flag int 1
+    STOPJ = 34  # deceleration [0], async flag int 1
+    GET_TCP_OFFSET = 40  # -> TCP offset pose in the output doubles
+    GET_FORWARD_KINEMATICS_DEFAULT = 43  # -> TCP pose at the current joints in the output doubles
+    IS_STEADY = 47  # -> output int 1: 1 when the arm stands still
+    STOP_SCRIPT = 255
+
+
+class ScriptServer:
+    """Script connections of ``controller`` (a ``controller.SimController``): ``serve(conn)`` reads programs
+    from one connection and runs ur-rtde's control script as a ``ControlProgram``."""
+
+    def __init__(self, controller):
+        self.c = controller
+
+    def serve(self, conn: socket.socket) -> None:
+        c = self.c
+        buffer = ""
+        while not c.stopping.is_set():
+            chunk = conn.recv(65536)
+            if not chunk:
+                return
+            buffer += chunk.decode(errors="replace")
+            match = re.search(r"^def (\w+)\(\):\n(.*?)^end\s*$", buffer, re.S | re.M)
+            if match is None and buffer.lstrip().startswith(("stopl", "stopj", "halt")):
+                c.record(f"script {buffer.strip()!r}")
+                with c.lock:
+                    c.sim.stop(1.5)
+                buffer = ""
+                continue
+            if match is not None:
+                self._run_program(match.group(1), match.group(2))
+                buffer = buffer[match.end():]
+
+    def _run_program(self, name: str, body: str) -> None:
+        c = self.c
+        c.record(f"program {name!r} received ({len(body)} characters)")
+        if name != "rtde_control":
+            c.record(f"program {name!r} is not the ur-rtde control script: not run")
+            return
+        offset = re.search(r"reg_offset_int\s*=\s*(\d+)", body)
+        with c.lock:
+            c.program = ControlProgram(c, int(offset.group(1)) if offset else 0)
+            c.state.program_running = True
+
+
+class ControlProgram:
+    """What ur-rtde's control script does, over the RTDE registers (see the module docstring), for
+    ``controller`` (a ``controller.SimController``) with register offset ``offset``; ``tick()`` runs once per
+    cell step under the controller's lock."""
+
+    def __init__(self, controller, offset: int):
+        self.c, self.offset = controller, offset
+        self.executing = False
+        self.waiting_motion = False  # a synchronous move is running: 'done' when it ends
+        self.async_motion = False  # an asynchronous one is: progress 'finished' when it ends
+        self.async_writes, self.async_op_id = 0, 0
+        self.handlers = {  # Command -> handler(cmd), True to go on, False to end the program
+            Command.STOP_SCRIPT: self._stop_script, Command.MOVEJ: self._move, Command.MOVEL: self._move,
+            Command.STOPL: self._stop_motion, Command.STOPJ: self._stop_motion, Command.SET_TCP: self._set_tcp,
+            Command.GET_INVERSE_KINEMATICS_ARGS: self._inverse_kinematics, Command.GET_TCP_OFFSET: self._tcp_offset,
+            Command.GET_FORWARD_KINEMATICS_DEFAULT: self._forward_kinematics, Command.IS_STEADY: self._is_steady,
+            Command.PROTECTIVE_STOP: self._protective_stop}
+        self._write_async_progress(-1)
+        self._write_int(0, READY)
+
+    def _int(self, i):
+        return int(self.c.state.inputs.get(f"input_int_register_{i + self.offset}", 0))
+
+    def _double(self, i):
+        return float(self.c.state.inputs.get(f"input_double_register_{i + self.offset}", 0.0))
+
+    def _doubles(self, start, n):
+        return np.array([self._double(start + k) for k in range(n)])
+
+    def _write_int(self, i, value):
+        self.c.state.outputs[f"output_int_register_{i + self.offset}"] = int(value)
+
+    def _write_double(self, i, value):
+        self.c.state.outputs[f"output_double_register_{i + self.offset}"] = float(value)
+
+    def _write_async_progress(self, value: int) -> None:
+        """output_int_register_2 as ur-rtde 1.6's script writes it: bits 24-30 operation id (counted up when an
+        operation starts, value 0), 16-22 write count, bit 15 running, 0-14 progress; value < 0: finished."""
+        self.async_writes = (self.async_writes + 1) % 128
+        if value == 0:
+            self.async_op_id = (self.async_op_id + 1) % 128
+        register = self.async_writes * 65536 + self.async_op_id * 16777216
+        if value >= 0:
+            register += (value & 0x7FFF) + 32768
+        self._write_int(2, register)
+
+    def tick(self) -> None:
+        sim = self.c.sim
+        if self.waiting_motion:
+            if sim.moving:
+                return
+            self.waiting_motion = False
+            self._write_int(0, DONE)
+        if self.async_motion and not sim.moving:
+            self.async_motion = False
+            self._write_async_progress(-1)
+        cmd = self._int(0)
+        if cmd in REALTIME_COMMANDS:
+            self.c.record(f"realtime command {cmd} (not simulated)")
+            self._write_int(0, READY)
+        elif cmd == Command.NO_CMD:
+            self.executing = False
+            self._write_int(0, READY)
+        elif not self.executing:
+            self.executing = True
+            if not self._process(cmd):
+                self.c.end_program("stop script")
+            elif not self.waiting_motion:
+                self._write_int(0, DONE)
+
+    def _process(self, cmd: int) -> bool:
+        """Start command ``cmd``; False ends the program (stop script)."""
+        handler = self.handlers.get(cmd)
+        if handler is None:
+            self.c.record(f"command {cmd} not simulated: answered done")
+            return True
+        return handler(cmd)
+
+    def _stop_script(self, cmd: int) -> bool:
+        self.c.record("stopScript")
+        return False
+
+    def _move(self, cmd: int) -> bool:
+        c, sim = self.c, self.c.sim
+        target, speed, acc, asynchronous = self._doubles(0, 6), self._double(6), self._double(7), self._int(1) == 1
+        name = "moveJ" if cmd == Command.MOVEJ else "moveL"
+        c.record(f"{name} {np.round(target, 5).tolist()} v={speed:g} a={acc:g}{' async' if asynchronous else ''}")
+        sim.stop(4.0)
+        try:
+            if cmd == Command.MOVEJ:
+                sim.move_joints(target, speed * c.state.speed_slider, acc)
+            else:
+                sim.move_linear(pose_to_matrix(target), speed * c.state.speed_slider, acc)
+        except MotionError as exc:
+            c.record(f"{name} failed: {exc}")
+            c.protective_stop(str(exc))
+            return False
+        self._start_motion(asynchronous)
+        return True
+
+    def _stop_motion(self, cmd: int) -> bool:
+        self.c.record(f"{'stopL' if cmd == Command.STOPL else 'stopJ'} a={self._double(0):g}")
+        self.c.sim.stop(self._double(0) or 10.0)
+        self._start_motion(self._int(1) == 1)
+        return True
+
+    def _start_motion(self, asynchronous: bool) -> None:
+        """A motion has started: report progress (asynchronous) or answer done when it ends (synchronous)."""
+        if asynchronous:
+            self.async_motion = True
+            self._write_async_progress(0)
+        else:
+            self.waiting_motion = True
+
+    def _set_tcp(self, cmd: int) -> bool:
+        self.c.sim.tcp = pose_to_matrix(self._doubles(0, 6))
+        self.c.record(f"setTcp {np.round(self._doubles(0, 6), 5).tolist()}")
+        return True
+
+    def _inverse_kinematics(self, cmd: int) -> bool:
+        sim = self.c.sim
+        T = pose_to_matrix(self._doubles(0, 6)) @ np.linalg.inv(sim.tcp)
+        q = nearest_ik(T, self._doubles(6, 6))
+        for k, v in enumerate(q if q is not None else sim.q):
+            self._write_double(k, v)
+        return True
+
+    def _tcp_offset(self, cmd: int) -> bool:
+        for k, v in enumerate(matrix_to_pose(self.c.sim.tcp)):
+            self._write_double(k, v)
+        return True
+
+    def _forward_kinematics(self, cmd: int) -> bool:
+        sim = self.c.sim
+        for k, v in enumerate(matrix_to_pose(fk(sim.q, sim.tcp))):
+            self._write_double(k, v)
+        return True
+
+    def _is_steady(self, cmd: int) -> bool:
+        self._write_int(1, 0 if self.c.sim.moving else 1)
+        return True
+
+    def _protective_stop(self, cmd: int) -> bool:
+        self.c.protective_stop("protective_stop command")
+        return False
