@@ -1,1 +1,2 @@
-"""DOPE training on BOP datasets, ONNX export and inference (built in a later milestone)."""
+"""DOPE (Deep Object Pose Estimation): training data and targets from BOP or DOPE/NDDS datasets, the network
+and its training, ONNX export, inference (onnxruntime or torch + PnP) with overlays, and ADD/ADD-S evaluation."""

@@ -1,2 +1,2 @@
-"""ROS 2-style nodes and the rclpy-compatible layer: ``nodes.ros`` gives the real rclpy and ROS 2
-messages when installed, else the stand-in (``nodes.compat``, ``nodes.msgs``)."""
+"""The ROS 2 nodes (generator, trainer, camera, inference, robot, evaluator, sim controller), the launch-file
+runner and the demo loop, written against ``nodes.ros``: the real rclpy when installed, else the stand-in."""

@@ -1,3 +1,2 @@
-"""UR5 bridge: kinematics from the DH table, the safety envelope, a robot interface over ur-rtde
-(``bridge.UR5``), grasp planning and pick-and-place, and a simulated UR controller in front of a PyBullet UR5
-cell (``sim``) that the unmodified ur-rtde client drives."""
+"""The UR5 side: kinematics, the safety envelope, the ur-rtde bridge, grasp planning, pick-and-place and
+grasp-attempt scoring; ``robot_bridge.sim`` is the simulated UR controller that the ur-rtde client drives."""
