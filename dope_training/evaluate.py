@@ -1,13 +1,11 @@
 """Pose accuracy of a trained DOPE network on a BOP split (``pegasus eval``): ADD and ADD-S.
 
-ADD (Hinterstoisser et al.): mean distance between the model's points under the estimated and the true
-pose. ADD-S: mean distance from each point under the true pose to the nearest point under the estimated
-pose (for symmetric objects). The object's metric is ADD-S when models_info gives it symmetries, else ADD;
-both are reported. Every ground-truth instance of the object seen at visib_fract >= ``min_visibility``
-counts: each is matched to the estimate of smallest ADD-S in its image (greedily, each estimate at most
-once); an instance with no estimate left is a miss (infinite error, failing every threshold); estimates
-left over are false positives. Pass rates at 2, 5 and 10 cm; AUC: the area under the pass-rate curve over
-thresholds 0..10 cm divided by 10 cm (1.0 = every error 0).
+ADD and ADD-S: see ``pegasus_gen.geometry.pose_error``. The object's metric is ADD-S when models_info gives
+it symmetries, else ADD; both are reported. Every ground-truth instance of the object seen at visib_fract >=
+``min_visibility`` counts: each is matched to the estimate of smallest ADD-S in its image (greedily, each
+estimate at most once); an instance with no estimate left is a miss (infinite error, failing every
+threshold); estimates left over are false positives. Pass rates at 2, 5 and 10 cm; AUC: the area under the
+pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0).
 """
 
 from __future__ import annotations
@@ -19,12 +17,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from dope_training.infer import DopeModel
 from pegasus_gen.dataset.bop import bop_frames
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.geometry.pose_error import add_error, adds_error
 from pegasus_gen.io import images
 from pegasus_gen.io.files import read_json, write_atomic
 from pegasus_gen.io.plots import line_chart
@@ -32,20 +30,6 @@ from pegasus_gen.io.plots import line_chart
 THRESHOLDS_M = (0.02, 0.05, 0.10)
 AUC_MAX_M = 0.10
 MAX_MODEL_POINTS = 2000
-
-
-def add_error(points: np.ndarray, T_est: np.ndarray, T_gt: np.ndarray) -> float:
-    """ADD in the points' units: points [N, 3] (model frame), poses [4, 4]."""
-    est = points @ T_est[:3, :3].T + T_est[:3, 3]
-    gt = points @ T_gt[:3, :3].T + T_gt[:3, 3]
-    return float(np.linalg.norm(est - gt, axis=1).mean())
-
-
-def adds_error(points: np.ndarray, T_est: np.ndarray, T_gt: np.ndarray) -> float:
-    """ADD-S in the points' units: for each true-pose point the distance to the nearest estimated-pose point."""
-    est = points @ T_est[:3, :3].T + T_est[:3, 3]
-    gt = points @ T_gt[:3, :3].T + T_gt[:3, 3]
-    return float(cKDTree(est).query(gt)[0].mean())
 
 
 def pass_rates(errors: np.ndarray, thresholds) -> np.ndarray:
@@ -141,7 +125,8 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     def summary(errors):
         found = errors[np.isfinite(errors)]
         return {"auc_0_10cm": auc(errors),
-                **{f"pass_{round(t * 100)}cm": float(r) for t, r in zip(THRESHOLDS_M, pass_rates(errors, THRESHOLDS_M))},
+                **{f"pass_{round(t * 100)}cm": float(r)
+                   for t, r in zip(THRESHOLDS_M, pass_rates(errors, THRESHOLDS_M))},
                 "median_m": float(np.median(found)) if len(found) else None}
 
     return {"model": str(model.path), "backend": model.backend, "data": str(root), "split": split,

@@ -93,7 +93,13 @@ class SimSource:
 
     def object_poses(self) -> dict[str, np.ndarray]:
         """{sim object name: T_world_obj}."""
-        return {name: self.T_world_base @ self.object_pose(name) for name in self.command("sim list").split()}
+        poses = {}
+        for name in self.command("sim list").split():
+            try:
+                poses[name] = self.T_world_base @ self.object_pose(name)
+            except LookupError:  # removed (by the evaluator) since the listing
+                continue
+        return poses
 
     def read(self) -> np.ndarray:
         from pegasus_gen.io.images import rgb_to_uint8

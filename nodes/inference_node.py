@@ -3,7 +3,7 @@
 Subscribes ``image`` (rgb8) and ``camera_info`` (K); publishes for each image ``object_pose``
 (geometry_msgs/PoseStamped of the best-scoring instance, camera frame, metres), ``detections``
 (vision_msgs/Detection3DArray: every instance with its score and model box) and ``overlay`` (the image with
-the posed boxes). Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives on the
+the posed boxes and keypoints). Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives on the
 ``model`` topic, as trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``,
 ``max_images`` (> 0: ask the launch to end after that many images).
 """
@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from dope_training.infer import DopeModel
+from dope_training.overlay import draw_poses
 from nodes.ros import Node, latched, msgs, run_node
-from pegasus_gen.dataset.view import draw_instance
 
 
 class InferenceNode(Node):
@@ -49,7 +49,6 @@ class InferenceNode(Node):
         self.images += 1
         obj = self.model.object
         array = msgs.Detection3DArray(header=msg.header)
-        overlay = image.copy()
         for pose in poses:
             hypothesis = msgs.ObjectHypothesisWithPose()
             hypothesis.hypothesis.class_id, hypothesis.hypothesis.score = obj.name, pose.score
@@ -58,9 +57,8 @@ class InferenceNode(Node):
             detection.bbox.center = msgs.matrix_to_pose(pose.T, msgs.Pose)
             detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = (float(v) for v in obj.bbox_size)
             array.detections.append(detection)
-            draw_instance(overlay, self.K, pose.T, np.array(obj.bbox_min), np.array(obj.bbox_size), None, None,
-                          (255, 60, 200), f"{obj.name} {pose.score:.2f}")
         self.detections_pub.publish(array)
+        overlay = draw_poses(image, self.K, poses, obj)
         self.overlay_pub.publish(msgs.numpy_to_image(overlay, "rgb8", msgs.Image, msg.header))
         if poses:
             self.pose_pub.publish(msgs.PoseStamped(header=msg.header, pose=msgs.matrix_to_pose(poses[0].T, msgs.Pose)))

@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 
 from dope_training.checkpoint import load_checkpoint
-from dope_training.evaluate import add_error, adds_error, auc, evaluate, match_instances, pass_rates, write_report
+from dope_training.evaluate import auc, evaluate, match_instances, pass_rates, write_report
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, ObjectPose
 from dope_training.train import ShardSampler, TrainConfig, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.geometry.pose_error import add_error, adds_error
 
 
 def losses(run):

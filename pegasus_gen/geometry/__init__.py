@@ -1,2 +1,2 @@
-"""Camera and object geometry: pinhole intrinsics, look-at poses, orbit trajectories, DOPE's cuboid.
-Plain numpy; imports nothing above errors."""
+"""Camera and object geometry: pinhole intrinsics, look-at poses, orbit trajectories, DOPE's cuboid, pose errors
+(ADD / ADD-S). numpy and scipy only; imports nothing above errors."""

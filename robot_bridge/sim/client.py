@@ -21,8 +21,12 @@ def dashboard_command(host: str, text: str, timeout: float = 5.0) -> str:
 
 
 def sim_object_pose(host: str, name: str, timeout: float = 5.0) -> np.ndarray:
-    """T_base_obj [4, 4] (m) of the simulated object ``name`` (the dashboard's ``sim pose NAME``)."""
-    values = [float(v) for v in dashboard_command(host, f"sim pose {name}", timeout).split()]
+    """T_base_obj [4, 4] (m) of the simulated object ``name`` (the dashboard's ``sim pose NAME``); LookupError
+    when the cell has no such object (e.g. removed since it was listed)."""
+    answer = dashboard_command(host, f"sim pose {name}", timeout)
+    if answer.startswith("sim: error"):
+        raise LookupError(f"simulated cell at {host}: no object {name!r} ({answer})")
+    values = [float(v) for v in answer.split()]
     T = np.eye(4)
     T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
     T[:3, 3] = values[:3]
