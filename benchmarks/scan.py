@@ -38,7 +38,7 @@ def main():
                               intrinsics=(K[0, 0], K[1, 1], K[0, 2], K[1, 2]), masks=str(tmp / "cap" / "masks"),
                               preset=args.preset, train_size=args.train_size, device=args.device)
         report = run_scan(tmp / "cap" / "images", tmp / "work", options, AssetLibrary(tmp / "lib"))
-    cams = report["cameras_T_cam_frame"]
+    cams = report.cameras_T_cam_frame
     names = [n for n in truth["images"] if n in cams]
 
     def centre(T):
@@ -48,13 +48,13 @@ def main():
     S = fit_similarity(np.array([centre(cams[n]) for n in names]),
                        np.array([centre(truth["images"][n]["T_cam_world"]) for n in names]))
     scale_error = np.cbrt(np.linalg.det(S[:3, :3])) - 1
-    t, sfm, tr = report["timings_s"], report["sfm"], report["training"]
+    t, sfm, tr = report.timings_s, report.sfm, report.training
     print(f"capture: {args.views} views at {args.size[0]}x{args.size[1]}")
-    print(f"markers {t['markers']:.1f} s | SfM {t['sfm']:.1f} s ({1000 * t['sfm'] / args.views:.0f} ms/photo) | "
-          f"training {t['training']:.1f} s | total {t['total']:.1f} s")
+    print(f"markers {t.markers:.1f} s | SfM {t.sfm:.1f} s ({1000 * t.sfm / args.views:.0f} ms/photo) | "
+          f"training {t.training:.1f} s | total {t.total:.1f} s")
     print(f"registered {sfm['registered']}/{sfm['images']}, {sfm['points']} points, reprojection error "
           f"{sfm['mean_reprojection_error_px']:.2f} px; metric scale error {100 * scale_error:+.2f}% "
-          f"(marker edge spread {100 * report['scale']['relative_std']:.2f}%)")
+          f"(marker edge spread {100 * report.scale['relative_std']:.2f}%)")
     print(f"splat training ({tr['device']}, {tr['backend']}, {tr['iterations']} iterations at {args.train_size} px): "
           f"{tr['iterations'] / tr['seconds']:.1f} it/s, held-out PSNR {tr['psnr_test']:.2f} dB, "
           f"{tr['n_splats_final']:,} splats")

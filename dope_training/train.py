@@ -24,7 +24,7 @@ import csv
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
 import cv2
@@ -36,6 +36,7 @@ from tqdm import tqdm
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
 from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
 from dope_training.model import DopeNetwork, ModelConfig, dope_loss, load_vgg19_weights, model_config
+from dope_training.train_config import TrainConfig
 from pegasus_gen.dataset.bop import model_boxes, object_names
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io import images
@@ -44,49 +45,6 @@ from pegasus_gen.io.plots import line_chart
 
 # Keys a resumed run may change; any other difference means another experiment and is refused.
 RESUMABLE_KEYS = {"epochs", "device", "loader_workers", "keep_checkpoints", "checkpoint_every", "out"}
-
-
-@dataclass
-class TrainConfig:
-    """One training run. ``size``/``lr`` of 0 take the variant's default (full: 400 px, 1e-4 as DOPE;
-    light: 320 px, 1e-3)."""
-
-    data: list[str] = field(default_factory=list)  # BOP dataset roots or DOPE/NDDS folders
-    object: str = ""  # obj_id or name (BOP), class name (NDDS)
-    out: str = "runs/dope"
-    split: str = "train_pbr"
-    variant: str = "light"
-    size: int = 0
-    epochs: int = 10
-    batch_size: int = 8
-    lr: float = 0.0
-    min_visibility: float = 0.1
-    augment: bool = True
-    device: str = "auto"
-    amp: bool = True  # CUDA only
-    loader_workers: int = 2
-    seed: int = 0
-    vgg19: str | None = None  # ImageNet VGG19 weights (full variant); default: the torch hub cache if present
-    object_size: list[float] | None = None  # model box size, metres (NDDS data only; BOP has models_info)
-    keep_checkpoints: int = 3
-    checkpoint_every: int = 1  # epochs between checkpoints, belief snapshots and loss.png (and the last epoch)
-
-    def resolved(self) -> "TrainConfig":
-        """A copy with the variant defaults filled in and the values checked."""
-        ModelConfig.of(self.variant)  # raises for an unknown variant
-        cfg = TrainConfig(**asdict(self))
-        cfg.size = cfg.size or (400 if cfg.variant == "full" else 320)
-        cfg.lr = cfg.lr or (1e-4 if cfg.variant == "full" else 1e-3)
-        if not cfg.data:
-            raise PegasusError("no training data given (--data PATH, a BOP dataset or a DOPE/NDDS folder)")
-        if not cfg.object:
-            raise PegasusError("no target object given (--object NAME_OR_OBJ_ID)")
-        for name in ("epochs", "batch_size", "size", "checkpoint_every", "keep_checkpoints"):
-            if getattr(cfg, name) <= 0:
-                raise PegasusError(f"{name} must be positive, got {getattr(cfg, name)}")
-        if cfg.device not in ("auto", "cpu", "cuda"):
-            raise PegasusError(f"device must be auto, cpu or cuda, got {cfg.device!r}")
-        return cfg
 
 
 def load_training_samples(cfg: TrainConfig):
@@ -155,7 +113,8 @@ def read_losses(path: Path) -> list[dict]:
     if not path.is_file():
         return []
     with open(path, newline="") as f:
-        return [{k: int(v) if k in ("step", "epoch") else float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+        return [{k: int(v) if k in ("step", "epoch") else float(v) for k, v in row.items()}
+                for row in csv.DictReader(f)]
 
 
 LOSS_FIELDS = ("step", "epoch", "loss", "images", "images_per_s", "lr")
@@ -216,7 +175,7 @@ def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
         raise PegasusError(f"{out}: nothing to resume (no last.pt)")
     state = load_checkpoint(out / "last.pt")
     before = state["train_config"]
-    differ = sorted(k for k, v in asdict(cfg).items() if k not in RESUMABLE_KEYS and before.get(k) != v)
+    differ = sorted(k for k, v in cfg.model_dump(mode="json").items() if k not in RESUMABLE_KEYS and before.get(k) != v)
     if differ:
         raise PegasusError(f"{out} was trained with another configuration ({', '.join(differ)} differ; see {stored})")
     if state["epoch"] >= cfg.epochs:
@@ -226,7 +185,6 @@ def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
 
 def train(cfg: TrainConfig, resume: bool = False) -> Path:
     """Train as ``cfg`` says (see the module docstring); returns the output folder."""
-    cfg = cfg.resolved()
     rank, world, local_rank = _distributed()
     device = _device(cfg.device, local_rank)
     if world > 1 and not torch.distributed.is_initialized():
@@ -266,7 +224,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
     rows = []
     if rank == 0:
         (out / "beliefs").mkdir(parents=True, exist_ok=True)
-        config_text = yaml.safe_dump(asdict(cfg), sort_keys=False).encode()
+        config_text = yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False).encode()
         write_atomic(out / "train_config.yaml", lambda f: f.write(config_text))
         rows = [r for r in read_losses(out / "loss.csv") if r["step"] <= step] if state else []
         _write_losses(out / "loss.csv", rows)
@@ -310,7 +268,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
                                belief_snapshot(model, snapshot_crop.copy(), snapshot_target, device))
             checkpoint = {"format": CHECKPOINT_FORMAT, "model": model.state_dict(), "optimizer": optimiser.state_dict(),
                           "scaler": scaler.state_dict(), "epoch": epoch + 1, "step": step,
-                          "model_config": model_config(model), "train_config": asdict(cfg),
+                          "model_config": model_config(model), "train_config": cfg.model_dump(mode="json"),
                           "object": asdict(target), "stride": dataset.stride}
             write_atomic(out / f"epoch_{epoch + 1:04d}.pt", lambda f: torch.save(checkpoint, f))
             write_atomic(out / "last.pt", lambda f: torch.save(checkpoint, f))

@@ -12,34 +12,51 @@ import html
 import json
 import shutil
 import time
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from nodes.launch import run as run_launch
 from pegasus_gen.errors import PegasusError
 
 
-@dataclass
-class DemoSettings:
-    scenes: int = 8
-    frames: int = 12
-    width: int = 320
-    height: int = 240
-    variant: str = "light"
-    size: int = 160  # crop, px: the light model leaves its all-zero start sooner on small crops
-    epochs: int = 80
-    attempts: int = 10
-    objects: str = "noodle_cup_red"
-    device: str = "cpu"
-    time_scale: float = 3.0
+class DemoSettings(BaseModel):
+    """The sizes of a demo run: the dataset, the network and its training, the grasp evaluation."""
 
-    @staticmethod
-    def of(full: bool) -> "DemoSettings":
-        if full:
-            return DemoSettings(scenes=200, frames=25, width=640, height=480, variant="full", size=400, epochs=30,
-                                attempts=20,
-                                objects="noodle_cup_red", device="auto", time_scale=2.0)
-        return DemoSettings()
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scenes: int = Field(gt=0, description="generated scenes")
+    frames: int = Field(gt=0, description="frames per scene")
+    width: int = Field(gt=0, description="image width, px")
+    height: int = Field(gt=0, description="image height, px")
+    variant: Literal["full", "light"] = Field(description="DOPE network variant")
+    size: int = Field(gt=0, description="training crop size, px")
+    epochs: int = Field(gt=0, description="training epochs")
+    attempts: int = Field(gt=0, description="grasp attempts in the simulated cell")
+    objects: str = Field(description="assets grasped (comma-separated); the first is the trained object")
+    device: Literal["auto", "cpu", "cuda"] = Field(description="where generation, training and inference run")
+    time_scale: float = Field(gt=0, description="simulated cell speed-up")
+    environments: tuple[str, ...] = Field(("wooden_table", "tiled_floor"), min_length=1,
+                                          description="environments of the training dataset")
+    held_out_environment: str = Field("store_shelf", description="environment of the evaluation frames, "
+                                                                 "left out of training")
+    distractors: tuple[str, ...] = Field(("snack_box", "drink_can"), description="other objects in the training "
+                                         "scenes (0 or 1 of each)")
+    infer_images: int = Field(3, gt=0, description="dataset images the inference node estimates poses in")
+
+    @classmethod
+    def small(cls) -> "DemoSettings":
+        """Fits a 2-core CPU in about ten minutes (160 px crops: the light model leaves its all-zero start
+        sooner on small crops)."""
+        return cls(scenes=8, frames=12, width=320, height=240, variant="light", size=160, epochs=80, attempts=10,
+                   objects="noodle_cup_red", device="cpu", time_scale=3.0)
+
+    @classmethod
+    def full(cls) -> "DemoSettings":
+        """The GPU-scale run: 5,000 frames at 640x480, the full DOPE network, 20 grasp attempts."""
+        return cls(scenes=200, frames=25, width=640, height=480, variant="full", size=400, epochs=30, attempts=20,
+                   objects="noodle_cup_red", device="auto", time_scale=2.0)
 
 
 def run_demo(out: str | Path, full: bool = False, library: str | None = None, host: str = "127.0.0.1") -> Path:
@@ -47,7 +64,7 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     from pegasus_gen.assets.demo import build_demo_library
     from pegasus_gen.assets.library import AssetLibrary
 
-    s = DemoSettings.of(full)
+    s = DemoSettings.full() if full else DemoSettings.small()
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise PegasusError(f"{out} is not empty: choose another --out or remove it")
@@ -60,13 +77,14 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     t0 = time.monotonic()
     dataset, train_run = out / "dataset", out / "train"
     target = s.objects.split(",")[0]
-    objects = f"[{{asset: {target}, count: [1, 2]}}, {{asset: snack_box, count: [0, 1]}}, {{asset: drink_can, count: [0, 1]}}]"
+    objects = "[" + ", ".join([f"{{asset: {target}, count: [1, 2]}}"]
+                              + [f"{{asset: {d}, count: [0, 1]}}" for d in s.distractors]) + "]"
     nodes = run_launch("generate_train_deploy.launch.py", [
         f"object:={target}", f"output:={dataset}", f"run:={train_run}", f"scenes:={s.scenes}",
         f"frames:={s.frames}", f"width:={s.width}", f"height:={s.height}", f"epochs:={s.epochs}",
         f"variant:={s.variant}", f"size:={s.size}", f"device:={s.device}",
         f"images:={dataset / 'train_pbr' / '000000' / 'rgb'}",
-        "max_images:=3", f"library:={lib.root}", "environments:=[wooden_table, tiled_floor]",
+        f"max_images:={s.infer_images}", f"library:={lib.root}", f"environments:=[{', '.join(s.environments)}]",
         f"objects_config:={objects}"])
     times["generate, train, export, infer (launch)"] = time.monotonic() - t0
     model = train_run / "model.onnx"
@@ -82,7 +100,7 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     held_out = generate(load_config(None, [f"output={out / 'held_out'}", *lib_args, "scenes=1",
                                            f"frames_per_scene={max(s.frames, 10)}", f"camera.width={s.width}",
                                            f"camera.height={s.height}", f"device={s.device}",
-                                           "environments=[store_shelf]", "seed=1000",
+                                           f"environments=[{s.held_out_environment}]", "seed=1000",
                                            f"objects=[{{asset: {target}, count: [1, 2]}}]"]))
     report = evaluate(DopeModel(model), held_out, "train_pbr")
     eval_json, eval_png = write_report(report, out / "eval_held_out")

@@ -36,12 +36,11 @@ class TrainerNode(Node):
         if self.job is not None:
             return
         p = self.params
-        cfg = TrainConfig(data=[data], object=str(p["object"]), out=p["out"], variant=p["variant"],
-                          epochs=int(p["epochs"]), batch_size=int(p["batch_size"]), size=int(p["size"]),
-                          device=p["device"], loader_workers=int(p["loader_workers"]))
 
-        def work():
-            run = train(cfg)
+        def work():  # the config is built (and checked) in the job: a bad parameter fails it, visibly
+            run = train(TrainConfig(data=[data], object=str(p["object"]), out=p["out"], variant=p["variant"],
+                                    epochs=p["epochs"], batch_size=p["batch_size"], size=p["size"],
+                                    device=p["device"], loader_workers=p["loader_workers"]))
             return export_checkpoint(run / "last.pt", run / "model.onnx")[0]
 
         self.get_logger().info(f"trainer_node: training on {data}")

@@ -19,7 +19,7 @@ def test_amp_training_on_cuda_learns_and_its_checkpoint_runs_on_the_cpu(dope_dat
     state = load_checkpoint(run / "last.pt")
     assert state["scaler"] and state["epoch"] == 60
     model = model_from_checkpoint(state)
-    image = DopeDataset(load_training_samples(cfg.resolved())[0][:1], 160, Augment(enabled=False))[0][0][None]
+    image = DopeDataset(load_training_samples(cfg)[0][:1], 160, Augment(enabled=False))[0][0][None]
     with torch.no_grad():
         cpu = model(image)[-1][0].numpy()
         gpu = model.cuda()(image.cuda())[-1][0].cpu().numpy()

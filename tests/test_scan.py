@@ -3,6 +3,7 @@ hemisphere of views): registration, metric scale, plane, object centring, traine
 the clear failures (no markers, too few or unrelated photos) that leave no asset behind."""
 
 import json
+import logging
 
 import cv2
 import numpy as np
@@ -56,10 +57,10 @@ def scanned(capture, tmp_path_factory):
 
 def test_scan_registers_scales_and_levels_the_capture(scanned):
     report, _, truth = scanned
-    assert report["sfm"]["registered_fraction"] >= 0.9
+    assert report.sfm["registered_fraction"] >= 0.9
     # every registered camera in the scan frame vs the truth: one similarity relates them; it must be
     # (nearly) a pure rigid motion keeping z up, the cup at the origin and the board at z = 0
-    cameras = report["cameras_T_cam_frame"]
+    cameras = report.cameras_T_cam_frame
     names = [n for n in truth["upright"]["images"] if n in cameras]
     est = np.array([centre(cameras[n]) for n in names])
     tru = np.array([centre(truth["upright"]["images"][n]["T_cam_world"]) for n in names])
@@ -69,9 +70,9 @@ def test_scan_registers_scales_and_levels_the_capture(scanned):
     assert np.degrees(np.arccos(np.clip(S[2, 2] / c, -1, 1))) < 2.0, "support plane normal off by > 2 deg"
     assert np.linalg.norm(S[:2, 3]) < 0.005, "the object is not centred over the origin"
     assert abs(S[2, 3]) < 0.005, "the support plane is not at z = 0"
-    assert report["scale"]["relative_std"] < 0.02
+    assert report.scale["relative_std"] < 0.02
     # the turned-over half lands where its cameras were relative to the cup
-    second = report["second_half"]
+    second = report.second_half
     assert second["second_half_registered"] >= 0.8 * VIEWS
     T_cup_up = np.array(truth["upright"]["T_world_object"])
     T_cup_flip = np.array(truth["flipped"]["T_world_object"])
@@ -90,8 +91,8 @@ def test_scan_registers_scales_and_levels_the_capture(scanned):
 
 def test_scanned_splats_reach_the_stated_psnr_and_become_an_asset(scanned):
     report, library, truth = scanned
-    assert report["training"]["psnr_test"] > PSNR_HELD_OUT_DB
-    asset = load_asset(report["asset"])
+    assert report.training["psnr_test"] > PSNR_HELD_OUT_DB
+    asset = load_asset(report.asset)
     assert asset.manifest.obj_id == 20 and asset.manifest.kind == "object"
     assert library.get("scanned_cup").path == asset.path
     size = np.ptp(asset.mesh.bounds, axis=0)  # the red demo cup: 94 mm across the rim, 105 mm tall
@@ -174,15 +175,16 @@ def test_too_few_or_unrelated_photos_fail_clearly_without_an_asset(tmp_path, cap
     assert not library.exists() or not any(library.iterdir())
 
 
-def test_environment_scan_is_level_and_metric(tmp_path, capsys):
+def test_environment_scan_is_level_and_metric(tmp_path, caplog):
     """The board scanned as an environment through the command line (no masks, estimated camera, photos
     matched in sequence): level at z = 0, board-sized."""
     write_capture(tmp_path / "cap", views=20, width=400, height=300, seed=3, progress=False)
     library = AssetLibrary(tmp_path / "lib")
+    caplog.set_level(logging.INFO, logger="pegasus_gen.scan")  # the pipeline's progress is logged
     assert main(["scan", str(tmp_path / "cap" / "images"), "--kind", "environment", "--name", "board",
                  "--aruco-size", "0.05", "--matcher", "sequential", "--train-size", "64", "--iterations", "150",
                  "--device", "cpu", "--library", str(library.root), "--work", str(tmp_path / "work")]) == 0
-    assert "structure from motion (sequential matching)" in capsys.readouterr().out
+    assert "structure from motion (sequential matching)" in caplog.text
     report = json.loads((tmp_path / "work" / "scan_report.json").read_text())
     assert report["sfm"]["registered_fraction"] >= 0.9
     env = library.get("board")

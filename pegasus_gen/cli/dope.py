@@ -15,12 +15,7 @@ from pegasus_gen.errors import PegasusError
 def cmd_train(args) -> int:
     from dope_training.train import TrainConfig, train
 
-    cfg = TrainConfig(data=args.data, object=args.object, out=args.out, split=args.split, variant=args.variant,
-                      size=args.size, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                      min_visibility=args.min_visibility, augment=not args.no_augment, device=args.device,
-                      amp=not args.no_amp, loader_workers=args.loader_workers, seed=args.seed, vgg19=args.vgg19,
-                      object_size=args.object_size)
-    out = train(cfg, resume=args.resume)
+    out = train(options.config_from_args(TrainConfig, args), resume=args.resume)
     if int(os.environ.get("RANK", 0)) == 0:  # under torchrun only rank 0 speaks
         print(f"trained: {out}/last.pt    loss curve: {out}/loss.png    export: pegasus export {out}/last.pt")
     return 0
@@ -36,22 +31,17 @@ def cmd_export(args) -> int:
 
 
 def _read_K(args, width: int, height: int) -> np.ndarray:
+    """K [3, 3] px: ``--K FX FY CX CY`` if given, else from ``--fov`` (degrees) and the image size."""
     from pegasus_gen.geometry.cameras import intrinsics
 
-    if args.K is not None:
-        fx, fy, cx, cy = args.K
-        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64)
-    return intrinsics(width, height, args.fov)
+    return intrinsics(width, height, args.fov, *(args.K or ()))
 
 
 def cmd_infer(args) -> int:
-    import json
-
     import cv2
 
     from dope_training.infer import DopeModel
-    from pegasus_gen.dataset.view import draw_instance
-    from pegasus_gen.io import images
+    from dope_training.overlay import write_poses
 
     model = DopeModel(args.model, device=args.device)
     image = cv2.imread(str(args.image), cv2.IMREAD_COLOR)
@@ -62,20 +52,8 @@ def cmd_infer(args) -> int:
     t0 = time.perf_counter()
     poses = model.estimate(image, K, min_score=args.min_score)
     ms = 1000 * (time.perf_counter() - t0)
-    out = Path(args.out)
-    overlay = image.copy()
     obj = model.object
-    for n, pose in enumerate(poses):
-        draw_instance(overlay, K, pose.T, np.array(obj.bbox_min), np.array(obj.bbox_size), None, None,
-                      (255, 60, 200), f"{obj.name} {pose.score:.2f}")
-        for x, y in pose.keypoints[np.isfinite(pose.keypoints).all(1)]:
-            cv2.circle(overlay, (int(round(x)), int(round(y))), 3, (255, 255, 0), -1, cv2.LINE_AA)
-    stem = Path(args.image).stem
-    png = images.write_image(out / f"{stem}_poses.png", overlay)
-    doc = {"image": str(args.image), "model": str(args.model), "backend": model.backend, "object": obj.name,
-           "obj_id": obj.obj_id, "K": K.tolist(), "ms": ms, "instances": [p.to_json() for p in poses]}
-    path = out / f"{stem}_poses.json"
-    path.write_text(json.dumps(doc, indent=1))
+    png, path = write_poses(args.out, args.image, image, K, poses, model, ms)
     print(f"{len(poses)} instance(s) of {obj.name!r} in {ms:.0f} ms on {model.backend}")
     for pose in poses:
         print(f"  score {pose.score:.2f}  t = {np.round(pose.T[:3, 3], 4).tolist()} m  "
@@ -103,26 +81,14 @@ def cmd_eval(args) -> int:
 
 
 def add_commands(sub) -> None:
+    from dope_training.train_config import TrainConfig
+
     p = sub.add_parser("train", help="train DOPE for one object on BOP datasets (or DOPE/NDDS folders)")
-    p.add_argument("--data", action="append", required=True, help="BOP dataset root or DOPE/NDDS folder (repeatable)")
-    p.add_argument("--object", required=True, help="obj_id or name (BOP), class name (NDDS)")
-    p.add_argument("--out", default="runs/dope", help="output folder (checkpoints, loss curve, belief snapshots)")
-    p.add_argument("--split", default="train_pbr")
-    p.add_argument("--variant", choices=("full", "light"), default="light",
-                   help="full: the original DOPE (GPU); light: 3 narrow stages for CPU")
-    p.add_argument("--epochs", type=int, default=10)
-    p.add_argument("--batch-size", type=int, default=8, help="per process")
-    p.add_argument("--size", type=int, default=0, help="crop size, px (default: full 400, light 320)")
-    p.add_argument("--lr", type=float, default=0.0, help="Adam learning rate (default: full 1e-4, light 1e-3)")
-    p.add_argument("--min-visibility", type=float, default=0.1, help="skip instances seen less than this")
-    p.add_argument("--no-augment", action="store_true", help="nominal-scale crops around the instances only")
-    options.add_device(p)
-    p.add_argument("--no-amp", action="store_true", help="full precision on CUDA")
-    p.add_argument("--loader-workers", type=int, default=2, help="data loading processes per training process")
-    options.add_seed(p)
-    p.add_argument("--vgg19", help="ImageNet VGG19 weights (torchvision vgg19-*.pth); default: torch hub cache")
-    p.add_argument("--object-size", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                   help="model box size in metres (DOPE/NDDS data)")
+    options.add_config_flags(p, TrainConfig, (
+        "data", "object", "out", "split", "variant", "epochs", "batch_size", "size", "lr", "min_visibility", "augment",
+        "device", "amp", "loader_workers", "seed", "vgg19", "object_size"),
+        data={"action": "append", "nargs": None, "help": "BOP dataset root or DOPE/NDDS folder (repeatable)"},
+        object_size={"metavar": ("X", "Y", "Z")})
     p.add_argument("--resume", action="store_true", help="continue the training in --out (more --epochs)")
     p.set_defaults(func=cmd_train)
 

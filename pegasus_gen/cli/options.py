@@ -91,3 +91,67 @@ def write_render_outputs(out_dir: Path, out) -> list[Path]:
                             images.colorize_labels(out.label)], axis=1)
     written.append(images.write_image(out_dir / "overview.png", sheet))
     return written
+
+
+def _flag_kwargs(field) -> dict:
+    """argparse keywords for a pydantic field: type, default or required, help, choices (Literal), nargs
+    (tuple: its length, list: one or more), store_true (bool defaulting to False)."""
+    import types
+    import typing
+
+    kind = field.annotation
+    if typing.get_origin(kind) in (typing.Union, types.UnionType):  # Optional[X]: X
+        kind = next(a for a in typing.get_args(kind) if a is not type(None))
+    kwargs = {"help": field.description}
+    if field.is_required():
+        kwargs["required"] = True
+    else:
+        kwargs["default"] = field.get_default(call_default_factory=True)
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+    if kind is bool:
+        kwargs["action"] = "store_true"
+    elif origin is typing.Literal:
+        kwargs.update(choices=args, type=type(args[0]))
+    elif origin is tuple:
+        kwargs.update(type=args[0], nargs="+" if args[-1] is Ellipsis else len(args))
+    elif origin is list:
+        kwargs.update(type=args[0], nargs="+")
+    else:
+        kwargs["type"] = kind
+    return kwargs
+
+
+def add_config_flags(parser, model, fields, **flags: dict) -> None:
+    """One flag per named field of a pydantic ``model``: ``--field-name`` (``--no-field-name`` for a bool that
+    defaults to True), help from the field's description. ``flags[name]`` replaces argparse keywords of one
+    flag (e.g. a metavar, or ``action="append"``)."""
+    for name in fields:
+        kwargs = {**_flag_kwargs(model.model_fields[name]), **flags.get(name, {})}
+        flag = "--" + name.replace("_", "-")
+        if kwargs.get("action") == "store_true" and kwargs.get("default") is True:
+            flag, kwargs["action"] = "--no-" + name.replace("_", "-"), "store_false"
+            kwargs["help"] = f"turn off {kwargs['help']}" if kwargs["help"] else None
+        if kwargs.get("action") in ("store_true", "store_false"):
+            kwargs.pop("type", None)
+        parser.add_argument(flag, dest=name, **kwargs)
+
+
+def config_from_args(model, args, **extra):
+    """``model`` built from the parsed ``args`` of the same names (and ``extra`` values); a ValidationError
+    becomes one PegasusError line naming the flag."""
+    from pydantic import ValidationError
+
+    from pegasus_gen.errors import PegasusError
+
+    values = {name: getattr(args, name) for name in model.model_fields if hasattr(args, name)}
+    try:
+        return model(**{**values, **extra})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        message = str(first["ctx"]["error"]) if first["type"] == "value_error" else first["msg"]
+        if not first["loc"]:
+            raise PegasusError(message) from None
+        name = str(first["loc"][0])
+        where = "--" + name.replace("_", "-") if name in values and name not in extra else name
+        got = "" if first["type"] == "missing" else f" (got {first['input']!r})"
+        raise PegasusError(f"{where}: {message}{got}") from None

@@ -1,22 +1,23 @@
 """The scan pipeline: a folder of photos -> a metric, z-up Gaussian-splat asset in the library.
 
-Steps (``run_scan``): ArUco detection (fails early when metric scale is impossible) -> structure from
-motion (:mod:`pegasus_gen.scan.sfm`) -> metric scale from the markers (:mod:`pegasus_gen.scan.markers`) ->
-alignment (support plane by RANSAC to z = 0, z up; an object centred over the origin) -> 3DGS training
-on the posed photos (:mod:`pegasus_gen.scan.training`) -> crop to the object -> asset (through
+Steps (``run_scan``): :func:`find_markers` (ArUco detection; fails early when metric scale is impossible) ->
+:func:`structure_from_motion` (:mod:`pegasus_gen.scan.sfm`) -> :func:`metric_frame` (scale from the markers,
+:mod:`pegasus_gen.scan.markers`; support plane by RANSAC to z = 0, z up; an object centred over the origin) ->
+:func:`posed_photos` (with the turned-over half of a two-part object scan) -> :func:`train_scene` (3DGS
+training, :mod:`pegasus_gen.scan.training`) -> :func:`write_asset` (cropped to the object; through
 :func:`pegasus_gen.assets.importers.import_cloud`: collision mesh, URDF, manifest).
 
 Everything except the asset goes to the work folder: ``sfm/`` (COLMAP database and model),
-``splats_aligned.ply`` (the trained scene, metric z-up), ``scan_report.json``, ``training_loss.png`` and
-``preview.png`` (held-out photos above their renders). The asset is written last, so a failure leaves no asset.
+``splats_aligned.ply`` (the trained scene, metric z-up), ``scan_report.json`` (a :class:`ScanReport`),
+``training_loss.png`` and ``preview.png`` (held-out photos above their renders). The asset is written last,
+so a failure leaves no asset. Progress goes to the ``logging`` module (INFO).
 """
 
 from __future__ import annotations
 
-import json
+import logging
 import shutil
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -24,67 +25,31 @@ import numpy as np
 import open3d as o3d
 
 from pegasus_gen.assets.importers import import_cloud, support_plane_alignment
-from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.images import rgb_to_uint8, write_image
 from pegasus_gen.io.plots import line_chart
 from pegasus_gen.scan import markers as scan_markers
 from pegasus_gen.scan import sfm
+from pegasus_gen.scan.options import ScanOptions
+from pegasus_gen.scan.report import ScanReport, ScanTimings
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.ply import write_ply
+
+logger = logging.getLogger(__name__)
 
 MIN_REGISTERED_FRACTION = 0.5  # below this the photos are too unrelated to trust the reconstruction
 OBJECT_MIN_HEIGHT = 0.004  # m: SfM points this far above the support plane are candidates for the object
 OBJECT_CLUSTER_EPS = 0.02  # m: DBSCAN neighbourhood joining object points into one cluster
 OBJECT_MARGIN = 0.01  # m added around the object's extent when cropping the trained splats
 CROP_MIN_HEIGHT = 0.002  # m: trained splats below this height belong to the support plane
-TRAIN_SIZE = {"cpu-small": 160, "7k": 1600, "30k": 1600}  # default longest photo side for training, px
 
 
-@dataclass
-class ScanOptions:
-    """Everything ``run_scan`` needs besides the photos. Lengths in metres, image sizes in pixels."""
-
-    kind: str = "object"  # "object" or "environment"
-    name: str = "scan"
-    obj_id: int | None = None
-    aruco_size: float | None = None  # printed marker edge length
-    aruco_dict: str = "DICT_4X4_50"
-    scale: float | None = None  # metres per reconstruction unit, instead of markers
-    intrinsics: tuple[float, float, float, float] | None = None  # fx, fy, cx, cy (OpenCV) if calibrated
-    matcher: str = "exhaustive"
-    masks: str | None = None  # folder of object masks named like the photos (non-zero = object)
-    second_images: str | None = None  # the object turned over (second half of an object scan)
-    second_masks: str | None = None  # its masks (both halves need masks: only the object moved)
-    preset: str = "cpu-small"  # splat training preset
-    iterations: int | None = None  # overrides the preset's length (its schedule is kept)
-    train_size: int | None = None  # longest image side for splat training (None: by preset)
-    holdout_every: int = 8  # every n-th registered photo is held out for PSNR
-    device: str = "auto"
-    seed: int = 0
-    overwrite: bool = False
-
-
-def _log(message: str) -> None:
-    print(message, flush=True)
-
-
-def _check_options(options: ScanOptions, image_dir: Path, names: list[str], library: AssetLibrary) -> None:
-    if options.kind not in ("object", "environment"):
-        raise PegasusError(f"--kind must be 'object' or 'environment', got {options.kind!r}")
-    if options.kind == "object" and options.obj_id is None:
-        raise PegasusError("an object scan needs --obj-id (an integer >= 1)")
+def check_inputs(options: ScanOptions, names: list[str], library: AssetLibrary) -> None:
+    """Refuse what the options cannot check alone: an asset of that name already in ``library`` (without
+    ``overwrite``), photos (``names``, and the second half's) without a mask in the mask folders."""
     if (library.root / options.name).exists() and not options.overwrite:
         raise PegasusError(f"{library.root / options.name}: already exists (pass --overwrite to replace it)")
-    if options.scale is None and options.aruco_size is None:
-        raise PegasusError("metric scale needs --aruco-size (printed marker edge in metres) or --scale "
-                           "(metres per reconstruction unit)")
-    if options.scale is not None and not options.scale > 0:
-        raise PegasusError(f"--scale must be positive, got {options.scale}")
-    if options.second_images is not None and (options.kind != "object" or options.masks is None
-                                              or options.second_masks is None):
-        raise PegasusError("a two-part object scan (--second-images) needs --masks and --second-masks: the "
-                           "object moved against the board between the halves, so only its pixels can be matched")
     for folder, photos in ((options.masks, names), (options.second_masks, None)):
         if folder is None:
             continue
@@ -250,7 +215,8 @@ def register_second_half(rec: sfm.SfmResult, S_frame_rec: np.ndarray, options: S
     Both halves go through one SfM with features only inside the object masks (the object is the one
     rigid thing both halves share); the first-half photos registered in both reconstructions give the
     similarity between them (camera centres, least squares). Returns (name -> (pycolmap camera,
-    T_cam_frame [4, 4]) for the registered second-half photos, object points [N, 3] in the frame, their colours [N, 3], report).
+    T_cam_frame [4, 4]) for the registered second-half photos, object points [N, 3] in the frame, their
+    colours [N, 3], report).
     """
     first_dir, second_dir = rec.image_dir, Path(options.second_images)
     second_names = sfm.list_images(second_dir)
@@ -265,7 +231,7 @@ def register_second_half(rec: sfm.SfmResult, S_frame_rec: np.ndarray, options: S
             _link(folder / name, combined / "images" / (prefix + name))
             _link(_mask_path(Path(mask_folder), name), combined / "masks" / (prefix + name + ".png"))
     both = sfm.reconstruct(combined / "images", work_dir / "sfm_halves", matcher=options.matcher,
-                           intrinsics=options.intrinsics, mask_dir=combined / "masks", seed=options.seed, log=_log)
+                           intrinsics=options.intrinsics, mask_dir=combined / "masks", seed=options.seed)
     registered = set(both.registered)
     shared = [n for n in rec.registered if "first_" + n in registered]
     placed = [n for n in second_names if "second_" + n in registered]
@@ -307,18 +273,52 @@ def training_views(photos, size: int) -> list:
     return views
 
 
+def find_markers(image_dir: Path, names: list[str], options: ScanOptions) -> tuple[dict, dict | None]:
+    """Step 1: the ArUco markers in the photos (photo name -> {marker id -> corners [4, 2] px}) and a report
+    (photos with markers, marker ids); ({}, None) when the options give the scale."""
+    if options.scale is not None:
+        return {}, None
+    logger.info("[1/5] ArUco markers (%s) in %d photos", options.aruco_dict, len(names))
+    detections = scan_markers.detect_in_folder(image_dir, names, options.aruco_dict)
+    seen = sum(len(d) > 0 for d in detections.values())
+    if seen == 0:
+        raise PegasusError(f"{image_dir}: no {options.aruco_dict} ArUco markers in any of the {len(names)} "
+                           "photos: metric scale is impossible. Put printed markers beside the object "
+                           "(--aruco-dict to pick their dictionary) or give --scale")
+    return detections, {"photos_with_markers": seen, "markers": sorted({i for d in detections.values() for i in d})}
+
+
+def structure_from_motion(image_dir: Path, work_dir: Path, names: list[str], options: ScanOptions
+                          ) -> tuple[sfm.SfmResult, dict]:
+    """Step 2: SfM on the photos (into ``work_dir``/sfm), refused when too few of them are placed; returns
+    (the reconstruction, its quality report)."""
+    logger.info("[2/5] structure from motion (%s matching)", options.matcher)
+    rec = sfm.reconstruct(image_dir, work_dir / "sfm", names, matcher=options.matcher,
+                          intrinsics=options.intrinsics, seed=options.seed)
+    registered = rec.registered
+    if len(registered) < 3 or len(registered) < MIN_REGISTERED_FRACTION * len(names):
+        raise PegasusError(f"{image_dir}: only {len(registered)} of {len(names)} photos could be placed by "
+                           "structure from motion: too few, or unrelated photos. Take photos that overlap "
+                           "(each sharing most of its view with the next)")
+    quality = rec.report()
+    logger.info("      registered %d/%d photos, %d points, reprojection error %.2f px", len(registered), len(names),
+                quality["points"], quality["mean_reprojection_error_px"])
+    return rec, quality
+
+
 def metric_frame(rec: sfm.SfmResult, detections: dict, options: ScanOptions, rng: np.random.Generator
                  ) -> tuple[np.ndarray, dict, dict]:
-    """The similarity S [4, 4] from the reconstruction to the scan frame (metres, support plane z = 0,
+    """Step 3: the similarity S [4, 4] from the reconstruction to the scan frame (metres, support plane z = 0,
     z up, an object over the origin), with the scale report and the alignment report."""
+    logger.info("[3/5] metric scale and alignment")
     if options.scale is not None:
         scale, scale_report = options.scale, {"scale_m_per_unit": options.scale, "source": "--scale"}
     else:
         corners = scan_markers.triangulate_markers(rec, detections)
         scale, scale_report = scan_markers.metric_scale(corners, options.aruco_size)
         scale_report["source"] = "aruco"
-        _log(f"      scale {scale:.5g} m/unit from {scale_report['edges']} marker edges "
-             f"(spread {100 * scale_report['relative_std']:.2f}%)")
+        logger.info("      scale %.5g m/unit from %d marker edges (spread %.2f%%)", scale, scale_report["edges"],
+                    100 * scale_report["relative_std"])
     points, _ = rec.points()
     centres = np.array([np.linalg.inv(rec.T_cam_world(n))[:3, 3] for n in rec.registered])
     T_align, alignment = align_to_support_plane(points * scale, centres * scale, options.kind, rng)
@@ -334,110 +334,104 @@ def _train_config(options: ScanOptions):
     return config if options.iterations is None else config.model_copy(update={"iterations": options.iterations})
 
 
+@dataclass
+class PosedPhotos:
+    """The photos placed in the scan frame, and the SfM points there: what splat training starts from."""
+
+    photos: list  # (photo path, its mask path or None, pycolmap camera, T_cam_frame [4, 4]) per placed photo
+    points: np.ndarray  # [N, 3] m, scan frame
+    colours: np.ndarray  # [N, 3] in [0, 1]
+    cameras_T_cam_frame: dict  # photo name ("second/NAME": the turned-over half) -> T_cam_frame [4, 4] (lists)
+    second_half: dict | None = None  # register_second_half's report; None for a one-part scan
+
+
+def posed_photos(rec: sfm.SfmResult, S: np.ndarray, options: ScanOptions, work_dir: Path) -> PosedPhotos:
+    """The registered photos (and the turned-over half's, for a two-part object scan) with their masks,
+    cameras and the SfM points in the scan frame that the similarity S [4, 4] maps the reconstruction to."""
+    points, colours = rec.points()
+    cameras = {n: camera_in_frame(rec.T_cam_world(n), S).tolist() for n in rec.registered}
+    masks = Path(options.masks) if options.masks is not None else None
+    photos = [(rec.image_dir / n, masks and _mask_path(masks, n), rec.camera(n), T) for n, T in cameras.items()]
+    posed = PosedPhotos(photos, points @ S[:3, :3].T + S[:3, 3], colours, cameras)
+    if options.second_images is None:
+        return posed
+    logger.info("      joining the turned-over half (object features only)")
+    placed, points_b, colours_b, posed.second_half = register_second_half(rec, S, options, work_dir)
+    second, second_masks = Path(options.second_images), Path(options.second_masks)
+    posed.photos += [(second / n, _mask_path(second_masks, n), cam, T) for n, (cam, T) in placed.items()]
+    posed.cameras_T_cam_frame.update({f"second/{n}": T.tolist() for n, (_, T) in placed.items()})
+    posed.points, posed.colours = np.concatenate([posed.points, points_b]), np.concatenate([posed.colours, colours_b])
+    logger.info("      placed %d of its photos (shared cameras agree within %.1f mm)", len(placed),
+                1000 * posed.second_half["shared_camera_residual_m"])
+    return posed
+
+
+def train_scene(posed: PosedPhotos, alignment: dict, options: ScanOptions, work_dir: Path) -> tuple[SplatCloud, dict]:
+    """Step 4: 3DGS training on the posed photos (every ``holdout_every``-th held out for PSNR when there are
+    enough), started from the SfM points (an object scan with masks: those on the object). Writes
+    splats_aligned.ply, training_loss.png and preview.png to ``work_dir``; returns (the trained splats, the
+    training report without its loss history)."""
+    from pegasus_gen.scan.training import init_from_points, train_splats
+
+    logger.info("[4/5] Gaussian-splat training on %d photos", len(posed.photos))
+    views = training_views(posed.photos, options.training_size)
+    every = options.holdout_every
+    held_out = views[every - 1::every] if len(views) >= 2 * every else []
+    train_views = [v for v in views if all(v is not h for h in held_out)]
+    keep = np.ones(len(posed.points), bool)
+    if options.kind == "object" and options.masks is not None:  # the photos show the object alone
+        keep = object_crop(posed.points, alignment["object_radius"], alignment["object_height"])
+    cloud, report = train_splats(init_from_points(posed.points[keep], posed.colours[keep]), train_views, held_out,
+                                 _train_config(options), device=options.device)
+    losses = np.asarray(report.pop("loss_history"))
+    write_image(work_dir / "training_loss.png", line_chart(
+        {"L1 + SSIM loss": (np.arange(1, len(losses) + 1), losses)}, "splat training", "iteration", "loss",
+        log_y=True))
+    write_ply(work_dir / "splats_aligned.ply", cloud)
+    _preview(work_dir / "preview.png", cloud, held_out or train_views, options.device)
+    return cloud, report
+
+
+def write_asset(cloud: SplatCloud, alignment: dict, options: ScanOptions, library: AssetLibrary,
+                rng: np.random.Generator, geometry: dict) -> Asset:
+    """Step 5: the trained splats (an object's cropped to it) as asset ``options.name`` in ``library``, with
+    ``geometry`` (provenance and quality figures) in its manifest."""
+    logger.info("[5/5] asset")
+    if options.kind == "object":
+        cloud = cloud.select(object_crop(cloud.means, alignment["object_radius"], alignment["object_height"]))
+        if len(cloud) < 50:
+            raise PegasusError(f"only {len(cloud)} trained splats lie on the object: the scan is too sparse")
+    return import_cloud(cloud, options.name, options.kind, library, options.obj_id, rng,
+                        overwrite=options.overwrite, geometry=geometry)
+
+
 def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
-             library: AssetLibrary | None = None) -> dict:
+             library: AssetLibrary | None = None) -> ScanReport:
     """Photos in ``image_dir`` -> asset ``options.name`` in ``library``; returns the scan report (also
     written to ``work_dir``/scan_report.json). Raises PegasusError with a clear message on bad input."""
     image_dir, work_dir = Path(image_dir), Path(work_dir)
     library = library or AssetLibrary()
     names = sfm.list_images(image_dir)
-    _check_options(options, image_dir, names, library)
+    check_inputs(options, names, library)
     rng = np.random.default_rng(options.seed)
     work_dir.mkdir(parents=True, exist_ok=True)
-    report: dict = {"options": asdict(options), "images": len(names), "timings_s": {}}
-    t0 = time.perf_counter()
-
-    detections = {}
-    if options.scale is None:
-        _log(f"[1/5] ArUco markers ({options.aruco_dict}) in {len(names)} photos")
-        detections = scan_markers.detect_in_folder(image_dir, names, options.aruco_dict)
-        seen = sum(len(d) > 0 for d in detections.values())
-        if seen == 0:
-            raise PegasusError(f"{image_dir}: no {options.aruco_dict} ArUco markers in any of the {len(names)} "
-                               "photos: metric scale is impossible. Put printed markers beside the object "
-                               "(--aruco-dict to pick their dictionary) or give --scale")
-        report["marker_detections"] = {"photos_with_markers": seen,
-                                       "markers": sorted({i for d in detections.values() for i in d})}
-    report["timings_s"]["markers"] = time.perf_counter() - t0
-
-    _log(f"[2/5] structure from motion ({options.matcher} matching)")
-    t = time.perf_counter()
-    rec = sfm.reconstruct(image_dir, work_dir / "sfm", names, matcher=options.matcher,
-                          intrinsics=options.intrinsics, seed=options.seed, log=_log)
-    report["sfm"] = rec.report()
-    report["timings_s"]["sfm"] = time.perf_counter() - t
-    registered = rec.registered
-    if len(registered) < 3 or len(registered) < MIN_REGISTERED_FRACTION * len(names):
-        raise PegasusError(f"{image_dir}: only {len(registered)} of {len(names)} photos could be placed by "
-                           "structure from motion: too few, or unrelated photos. Take photos that overlap "
-                           "(each sharing most of its view with the next)")
-    _log(f"      registered {len(registered)}/{len(names)} photos, {report['sfm']['points']} points, "
-         f"reprojection error {report['sfm']['mean_reprojection_error_px']:.2f} px")
-
-    _log("[3/5] metric scale and alignment")
-    S, report["scale"], report["alignment"] = metric_frame(rec, detections, options, rng)
-    scale = report["scale"]["scale_m_per_unit"]
-    points, colours = rec.points()
-    report["cameras_T_cam_frame"] = {n: camera_in_frame(rec.T_cam_world(n), S).tolist() for n in registered}
-
-    aligned = points @ S[:3, :3].T + S[:3, 3]
-    masks = Path(options.masks) if options.masks is not None else None
-    # (photo, its mask or None, pycolmap camera, T_cam_frame) for every registered photo
-    photos = [(image_dir / n, masks and _mask_path(masks, n), rec.camera(n), report["cameras_T_cam_frame"][n])
-              for n in registered]
-    if options.second_images is not None:
-        _log("      joining the turned-over half (object features only)")
-        cameras, points_b, colours_b, report["second_half"] = register_second_half(rec, S, options, work_dir)
-        second, second_masks = Path(options.second_images), Path(options.second_masks)
-        photos += [(second / n, _mask_path(second_masks, n), cam, T) for n, (cam, T) in cameras.items()]
-        report["cameras_T_cam_frame"].update({f"second/{n}": T.tolist() for n, (_, T) in cameras.items()})
-        aligned, colours = np.concatenate([aligned, points_b]), np.concatenate([colours, colours_b])
-        _log(f"      placed {len(cameras)} of its photos (shared cameras agree within "
-             f"{1000 * report['second_half']['shared_camera_residual_m']:.1f} mm)")
-
-    _log(f"[4/5] Gaussian-splat training on {len(photos)} photos")
-    from pegasus_gen.scan.training import init_from_points, train_splats
-
-    t = time.perf_counter()
-    views = training_views(photos, options.train_size or TRAIN_SIZE[options.preset])
-    held_out = views[options.holdout_every - 1::options.holdout_every] if len(views) >= 2 * options.holdout_every \
-        else []
-    train_views = [v for v in views if all(v is not h for h in held_out)]
-    keep = np.ones(len(aligned), bool)
-    if options.kind == "object" and masks is not None:  # the photos show the object alone
-        a = report["alignment"]
-        keep = object_crop(aligned, a["object_radius"], a["object_height"])
-    cloud, train_report = train_splats(init_from_points(aligned[keep], colours[keep]), train_views, held_out,
-                                       _train_config(options), device=options.device)
-    losses = np.asarray(train_report.pop("loss_history"))
-    write_image(work_dir / "training_loss.png", line_chart(
-        {"L1 + SSIM loss": (np.arange(1, len(losses) + 1), losses)}, "splat training", "iteration", "loss",
-        log_y=True))
-    report["training"] = train_report
-    report["timings_s"]["training"] = time.perf_counter() - t
-    write_ply(work_dir / "splats_aligned.ply", cloud)
-    _preview(work_dir / "preview.png", cloud, held_out or train_views, options.device)
-
-    _log("[5/5] asset")
-    if options.kind == "object":
-        a = report["alignment"]
-        cloud = cloud.select(object_crop(cloud.means, a["object_radius"], a["object_height"]))
-        if len(cloud) < 50:
-            raise PegasusError(f"only {len(cloud)} trained splats lie on the object: the scan is too sparse")
-    geometry = {"source": "pegasus scan", "images": len(names), "registered": len(registered),
-                "scale_m_per_unit": scale, "psnr_held_out": train_report.get("psnr_test")}
-    asset = import_cloud(cloud, options.name, options.kind, library, options.obj_id, rng,
-                         overwrite=options.overwrite, geometry=geometry)
-    report["asset"] = str(asset.path)
-    report["timings_s"]["total"] = time.perf_counter() - t0
-    (work_dir / "scan_report.json").write_text(json.dumps(report, indent=1, default=_json_default))
-    _log(f"asset written: {asset.path} ({len(asset.splats):,} splats); report: {work_dir / 'scan_report.json'}")
+    timings = ScanTimings()
+    with timings.timed("total"):
+        with timings.timed("markers"):
+            detections, marker_report = find_markers(image_dir, names, options)
+        with timings.timed("sfm"):
+            rec, quality = structure_from_motion(image_dir, work_dir, names, options)
+        S, scale, alignment = metric_frame(rec, detections, options, rng)
+        posed = posed_photos(rec, S, options, work_dir)
+        with timings.timed("training"):
+            cloud, training = train_scene(posed, alignment, options, work_dir)
+        asset = write_asset(cloud, alignment, options, library, rng, geometry={
+            "source": "pegasus scan", "images": len(names), "registered": len(rec.registered),
+            "scale_m_per_unit": scale["scale_m_per_unit"], "psnr_held_out": training.get("psnr_test")})
+    report = ScanReport(options=options.model_dump(), images=len(names), timings_s=timings,
+                        marker_detections=marker_report, sfm=quality, scale=scale, alignment=alignment,
+                        cameras_T_cam_frame=posed.cameras_T_cam_frame, second_half=posed.second_half,
+                        training=training, asset=str(asset.path))
+    path = report.write(work_dir / "scan_report.json")
+    logger.info("asset written: %s (%s splats); report: %s", asset.path, f"{len(asset.splats):,}", path)
     return report
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    return str(value)

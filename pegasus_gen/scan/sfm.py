@@ -17,6 +17,8 @@ import pycolmap
 
 from pegasus_gen.errors import PegasusError
 
+logger = logging.getLogger(__name__)
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 MATCHERS = ("exhaustive", "sequential")
 
@@ -97,7 +99,7 @@ def _reader_options(intrinsics, mask_dir) -> pycolmap.ImageReaderOptions:
 
 def reconstruct(image_dir: str | Path, work_dir: str | Path, names: list[str] | None = None,
                 matcher: str = "exhaustive", intrinsics=None, mask_dir: str | Path | None = None,
-                max_image_size: int = 1600, seed: int = 0, log=print) -> SfmResult:
+                max_image_size: int = 1600, seed: int = 0) -> SfmResult:
     """Run SfM on the images of ``image_dir`` (all, or ``names``) and keep the largest reconstruction.
 
     work_dir: gets database.db and sparse/ (COLMAP's model files, written again after the run).
@@ -126,11 +128,11 @@ def reconstruct(image_dir: str | Path, work_dir: str | Path, names: list[str] | 
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = max_image_size
     extraction.use_gpu = False
-    log(f"sfm: extracting features from {len(names)} images")
+    logger.info("sfm: extracting features from %d images", len(names))
     pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=_reader_options(intrinsics, mask_dir), extraction_options=extraction,
                               device=pycolmap.Device.cpu)
-    log(f"sfm: {matcher} matching")
+    logger.info("sfm: %s matching", matcher)
     if matcher == "exhaustive":
         pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
     else:
@@ -143,7 +145,7 @@ def reconstruct(image_dir: str | Path, work_dir: str | Path, names: list[str] | 
         options.ba_refine_extra_params = False
         options.mapper.abs_pose_refine_focal_length = False
         options.mapper.abs_pose_refine_extra_params = False
-    log("sfm: incremental mapping")
+    logger.info("sfm: incremental mapping")
     models = pycolmap.incremental_mapping(database, image_dir, work_dir / "sparse", options=options)
     if not models:
         raise PegasusError(f"{image_dir}: structure from motion registered no images: the photos do not "

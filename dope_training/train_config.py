@@ -1,0 +1,46 @@
+"""The configuration of a DOPE training run (``pegasus train``, trainer_node): every knob with its default,
+typed and checked; the variant's defaults filled in when it is built. Light to import (no torch)."""
+
+from __future__ import annotations
+
+from typing import Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class TrainConfig(BaseModel):
+    """One training run. ``size``/``lr`` of 0 take the variant's default (full: 400 px, 1e-4 as DOPE;
+    light: 320 px, 1e-3), filled in when the config is built."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    data: list[str] = Field(min_length=1, description="BOP dataset roots or DOPE/NDDS folders")
+    object: str = Field(min_length=1, description="obj_id or name (BOP), class name (NDDS)")
+    out: str = Field("runs/dope", description="output folder (checkpoints, loss curve, belief snapshots)")
+    split: str = Field("train_pbr", description="BOP split to train on")
+    variant: Literal["full", "light"] = Field(
+        "light", description="full: the original DOPE (GPU); light: 3 narrow stages for CPU")
+    size: int = Field(0, ge=0, description="crop size, px (default: full 400, light 320)")
+    epochs: int = Field(10, gt=0, description="epochs in all (a resumed run trains up to this)")
+    batch_size: int = Field(8, gt=0, description="per process")
+    lr: float = Field(0.0, ge=0.0, description="Adam learning rate (default: full 1e-4, light 1e-3)")
+    min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
+    augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
+                                            "nominal-scale crops around the instances only)")
+    device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto: CUDA when torch sees a GPU")
+    amp: bool = Field(True, description="mixed precision (float16) on CUDA")
+    loader_workers: int = Field(2, ge=0, description="data loading processes per training process")
+    seed: int = Field(0, description="random seed (weights, image order, augmentation)")
+    vgg19: Optional[str] = Field(None, description="ImageNet VGG19 weights (torchvision vgg19-*.pth) for the "
+                                                   "full variant; default: the torch hub cache if present")
+    object_size: Optional[tuple[float, float, float]] = Field(
+        None, description="model box size in metres (DOPE/NDDS data; BOP has models_info)")
+    keep_checkpoints: int = Field(3, gt=0, description="newest epoch checkpoints kept")
+    checkpoint_every: int = Field(1, gt=0, description="epochs between checkpoints, belief snapshots and "
+                                                       "loss.png (and the last epoch)")
+
+    @model_validator(mode="after")
+    def _variant_defaults(self) -> "TrainConfig":
+        self.size = self.size or (400 if self.variant == "full" else 320)
+        self.lr = self.lr or (1e-4 if self.variant == "full" else 1e-3)
+        return self
