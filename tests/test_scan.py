@@ -190,7 +190,9 @@ def test_environment_scan_is_level_and_metric(tmp_path, caplog):
     env = library.get("board")
     xy, z = env.splats.means[:, :2], env.splats.means[:, 2]
     board = (np.abs(xy) < 0.2).all(axis=1) & (np.linalg.norm(xy - np.median(xy, axis=0), axis=1) > 0.08)
-    assert np.mean(np.abs(z) < 0.005) > 0.5  # most splats lie on the board, at z = 0
+    # most splats lie on the board, at z = 0 (measured 0.73 +- 0.003 within 1 cm over 3 runs; within 5 mm it
+    # was 0.50-0.52, too close to a 0.5 bar for a test)
+    assert np.mean(np.abs(z) < 0.01) > 0.6
     flat = env.splats.means[board & (np.abs(z) < 0.01)]
     normal = np.linalg.svd(flat - flat.mean(axis=0), full_matrices=False)[2][2]
     assert np.degrees(np.arccos(abs(normal[2]))) < 1.0 and abs(flat[:, 2].mean()) < 0.002, "board not level at z = 0"

@@ -83,6 +83,22 @@ def _closing_alpha_shape(pcd, tetra, pt_map, alpha: float, params: MeshParams, d
                        f"{1000 * alpha / params.alpha_growth:.1f} mm tried); is this an open surface?")
 
 
+def _decimate(smooth: o3d.geometry.TriangleMesh, params: MeshParams, closed: bool) -> trimesh.Trimesh:
+    """The smoothed mesh decimated to at most ``params.max_triangles``. Decimation can open seams: small holes
+    are filled, and for a closed mesh a decimation that stays open is retried with fewer triangles (another
+    collapse order) before it is refused."""
+    n = len(smooth.triangles)
+    targets = [round(params.max_triangles * f) for f in (1.0, 0.9, 0.8, 0.7)] if n > params.max_triangles else [n]
+    for target in targets:
+        mesh = _as_trimesh(smooth if target == n else smooth.simplify_quadric_decimation(target))
+        trimesh.repair.fix_normals(mesh)
+        if closed and not mesh.is_watertight:
+            trimesh.repair.fill_holes(mesh)
+        if not closed or mesh.is_watertight:
+            return mesh
+    raise PegasusError("the decimated collision mesh is not closed; raise max_triangles")
+
+
 def splats_to_mesh(cloud: SplatCloud, params: MeshParams = MeshParams(), closed: bool = True
                    ) -> tuple[trimesh.Trimesh, dict]:
     """Collision mesh (metres, the cloud's frame) and a report {params, alpha, volume, watertight}.
@@ -106,14 +122,7 @@ def splats_to_mesh(cloud: SplatCloud, params: MeshParams = MeshParams(), closed:
                                        o3d.utility.Vector3iVector(shape.faces))
     if params.smooth_iterations > 0:
         smooth = smooth.filter_smooth_taubin(params.smooth_iterations)
-    if len(shape.faces) > params.max_triangles:
-        smooth = smooth.simplify_quadric_decimation(params.max_triangles)
-    mesh = _as_trimesh(smooth)
-    trimesh.repair.fix_normals(mesh)
-    if closed and not mesh.is_watertight:  # decimation can open seams; fill small holes
-        trimesh.repair.fill_holes(mesh)
-        if not mesh.is_watertight:
-            raise PegasusError("the decimated collision mesh is not closed; raise max_triangles")
+    mesh = _decimate(smooth, params, closed)
     report = {"params": asdict(params), "alpha": alpha, "spacing": spacing, "points": len(pcd.points),
               "triangles": len(mesh.faces), "watertight": bool(mesh.is_watertight),
               "volume": float(mesh.volume) if mesh.is_watertight else None}
