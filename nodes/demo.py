@@ -2,7 +2,7 @@
 assets, an evaluation on frames of an environment left out of training, the closed-loop grasp evaluation
 in the simulated cell, and an HTML report with the figures.
 
-Small settings (default) fit a 2-core CPU in about ten minutes; ``full`` gives the GPU-scale run (a
+Small settings (default) fit a 2-core CPU in about 13 minutes; ``full`` gives the GPU-scale run (a
 5,000-frame dataset at 640x480, the full DOPE network, 20 grasp attempts over two objects).
 """
 
@@ -47,7 +47,7 @@ class DemoSettings(BaseModel):
 
     @classmethod
     def small(cls) -> "DemoSettings":
-        """Fits a 2-core CPU in about ten minutes (160 px crops: the light model leaves its all-zero start
+        """Fits a 2-core CPU in about 13 minutes (160 px crops: the light model leaves its all-zero start
         sooner on small crops)."""
         return cls(scenes=8, frames=12, width=320, height=240, variant="light", size=160, epochs=80, attempts=10,
                    objects="noodle_cup_red", device="cpu", time_scale=3.0)
