@@ -85,8 +85,9 @@ def find_launch_file(file: str | Path) -> Path:
     path = Path(file)
     if path.is_file():
         return path
-    if path.name == str(file) and (launch_dir() / path.name).is_file():
-        return launch_dir() / path.name
+    installed = launch_dir() / path.name
+    if path.name == str(file) and installed.is_file():
+        return installed
     raise PegasusError(f"{file}: no such launch file (installed: {', '.join(installed_launch_files())})")
 
 
