@@ -21,13 +21,19 @@ CHECKPOINT_FORMAT = 1
 
 @dataclass
 class TargetObject:
-    """The object a network is trained for: what PnP and evaluation need without the dataset."""
+    """The object a network is trained for: what PnP, depth refinement and evaluation need without the
+    dataset. ``surface_points``/``surface_normals`` [N, 3] (metres, model frame; unit normals): samples of
+    the model's surface for depth refinement, None when the training data had no model (DOPE/NDDS folders);
+    ``symmetry_axis`` [3]: the axis of a continuous rotational symmetry (model frame), if any."""
 
     obj_id: int
     name: str
     bbox_min: list[float]  # [3] metres, model frame
     bbox_size: list[float]  # [3] metres
     symmetric: bool = False
+    surface_points: list[list[float]] | None = None
+    surface_normals: list[list[float]] | None = None
+    symmetry_axis: list[float] | None = None
 
 
 def load_checkpoint(path: str | Path) -> dict:

@@ -118,13 +118,18 @@ class Augment:
     enabled: bool = True
 
 
-def crop_transform(image_hw: tuple[int, int], size: int, centre: np.ndarray, rng: np.random.Generator,
-                   aug: Augment) -> np.ndarray:
-    """[2, 3] affine map from image pixels to crop pixels: the image's shorter side fitted into ``size`` (the
-    nominal scale, which inference reproduces), randomly scaled, rotated about and centred near ``centre`` [2]
-    (px). Without augmentation: the nominal scale, centred on ``centre``."""
-    h, w = image_hw
-    base = size / min(h, w)
+def input_scale(image_hw: tuple[int, int], K: np.ndarray, size: int, focal_px: float = 0.0) -> float:
+    """The nominal scale from image to network-input pixels, which training and inference share: with
+    ``focal_px`` > 0 the image is scaled so that its fx (K [3, 3], px) becomes ``focal_px`` (an object at a
+    given distance then looks the same size to the network whatever the camera); with 0, DOPE's policy: the
+    image's shorter side fitted into ``size`` px."""
+    return focal_px / float(K[0, 0]) if focal_px > 0 else size / min(image_hw)
+
+
+def crop_transform(size: int, base: float, centre: np.ndarray, rng: np.random.Generator, aug: Augment) -> np.ndarray:
+    """[2, 3] affine map from image pixels to crop pixels [size, size]: the nominal scale ``base``
+    (``input_scale``), randomly scaled, rotated about and centred near ``centre`` [2] (px). Without
+    augmentation: the nominal scale, centred on ``centre``."""
     if not aug.enabled:
         return np.array([[base, 0, (size - 1) / 2 - base * centre[0]], [0, base, (size - 1) / 2 - base * centre[1]]])
     s = base * rng.uniform(*aug.scale)
@@ -154,10 +159,10 @@ class DopeDataset(torch.utils.data.Dataset):
     """
 
     def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
-                 stride: int = 8):
+                 stride: int = 8, focal_px: float = 0.0):
         if size % stride:
             raise PegasusError(f"input size {size} must be a multiple of the network stride {stride}")
-        self.samples, self.size, self.stride, self.seed = samples, size, stride, seed
+        self.samples, self.size, self.stride, self.seed, self.focal_px = samples, size, stride, seed, focal_px
         self.augment = augment or Augment()
         self.epoch = 0
 
@@ -175,7 +180,8 @@ class DopeDataset(torch.utils.data.Dataset):
         image = image[..., ::-1]
         keypoints = np.stack(sample.keypoints)
         centre = keypoints[rng.integers(len(keypoints)), 8]
-        M = crop_transform(image.shape[:2], self.size, centre, rng, self.augment)
+        base = input_scale(image.shape[:2], sample.K, self.size, self.focal_px)
+        M = crop_transform(self.size, base, centre, rng, self.augment)
         border = tuple(int(v) for v in rng.integers(0, 256, 3)) if self.augment.enabled else (0, 0, 0)
         crop = cv2.warpAffine(np.ascontiguousarray(image), M, (self.size, self.size), flags=cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=border)

@@ -5,7 +5,8 @@ it symmetries, else ADD; both are reported. Every ground-truth instance of the o
 ``min_visibility`` counts: each is matched to the estimate of smallest ADD-S in its image (greedily, each
 estimate at most once); an instance with no estimate left is a miss (infinite error, failing every
 threshold); estimates left over are false positives. Pass rates at 2, 5 and 10 cm; AUC: the area under the
-pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0).
+pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0). With depth refinement
+(``refine``) the refined poses are matched and scored the same way, a rejected refinement being a miss.
 """
 
 from __future__ import annotations
@@ -68,23 +69,34 @@ class Match:
     T_gt: np.ndarray
 
 
-def match_instances(points: np.ndarray, truths: list[np.ndarray], estimates: list) -> tuple[list, int]:
-    """Greedy one-to-one matching by ADD-S: [(truth index, estimate index or None, add, adds)] and the count
-    of estimates left over."""
-    pairs = sorted((adds_error(points, e.T, t), i, j) for i, t in enumerate(truths) for j, e in enumerate(estimates))
+def match_instances(points: np.ndarray, truths: list[np.ndarray], estimates: list[np.ndarray]) -> tuple[list, int]:
+    """Greedy one-to-one matching by ADD-S of truths and estimates (T_cam_obj [4, 4] each): [(truth index,
+    estimate index or None, add, adds)] in truth order, and the count of estimates left over."""
+    pairs = sorted((adds_error(points, e, t), i, j) for i, t in enumerate(truths) for j, e in enumerate(estimates))
     taken_t, taken_e, out = set(), set(), []
     for adds, i, j in pairs:
         if i not in taken_t and j not in taken_e:
             taken_t.add(i)
             taken_e.add(j)
-            out.append((i, j, add_error(points, estimates[j].T, truths[i]), adds))
+            out.append((i, j, add_error(points, estimates[j], truths[i]), adds))
     out += [(i, None, np.inf, np.inf) for i in range(len(truths)) if i not in taken_t]
     return sorted(out, key=lambda m: m[0]), len(estimates) - len(taken_e)
 
 
+def summary(errors: np.ndarray) -> dict:
+    """AUC (0-10 cm), pass rates and median of finite errors [N] (m, inf = miss)."""
+    found = errors[np.isfinite(errors)]
+    return {"auc_0_10cm": auc(errors),
+            **{f"pass_{round(t * 100)}cm": float(r) for t, r in zip(THRESHOLDS_M, pass_rates(errors, THRESHOLDS_M))},
+            "median_m": float(np.median(found)) if len(found) else None}
+
+
 def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibility: float = 0.1,
-             max_images: int | None = None, min_score: float = 0.1) -> dict:
-    """The report (see the module docstring) as a dict; ``max_images`` per scene."""
+             max_images: int | None = None, min_score: float = 0.1, refine: bool = False) -> dict:
+    """The report (see the module docstring) as a dict; ``max_images`` per scene. With ``refine`` every
+    estimate is also refined with the frame's depth image (``DopeModel.estimate``) and the report gains
+    ``refined``: the same figures for the refined poses, where an estimate the refinement rejects counts
+    as a miss (a robot would not act on it)."""
     root = Path(root)
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder (choose --split)")
@@ -99,7 +111,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
                            f"{obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
     symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous"))
     points = model_points(root, obj.obj_id)
-    matches, false_positives, images_seen = [], 0, 0
+    matches, refined_errors, false_positives, rejected, images_seen = [], [], 0, 0, 0
     frames = [f for f in bop_frames(root / split, max_images)
               if any(i.obj_id == obj.obj_id for i in f.instances)]
     for frame in tqdm(frames, desc="eval", unit="img"):
@@ -110,48 +122,60 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
         if image is None:
             raise PegasusError(f"{frame.image}: cannot read the image")
-        estimates = model.estimate(image[..., ::-1].copy(), frame.K, min_score=min_score)
+        depth = frame.read_depth() if refine else None
+        estimates = model.estimate(image[..., ::-1].copy(), frame.K, min_score=min_score, depth_m=depth)
         images_seen += 1
-        pairs, extra = match_instances(points, [t.T for t in truths], estimates)
+        pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in estimates])
         false_positives += extra
         for i, j, add, adds in pairs:
             est = estimates[j] if j is not None else None
             matches.append(Match(frame.scene.name, frame.im_id, truths[i].index, add, adds,
                                  est.score if est else None, est.T if est else None, truths[i].T))
+        if refine:
+            refined = [e.refined for e in estimates if e.refined is not None]
+            rejected += len(estimates) - len(refined)
+            refined_errors += [(add, adds) for _, _, add, adds in match_instances(points, [t.T for t in truths],
+                                                                                   refined)[0]]
     add = np.array([m.add_m for m in matches])
     adds = np.array([m.adds_m for m in matches])
-    metric = adds if symmetric else add
-
-    def summary(errors):
-        found = errors[np.isfinite(errors)]
-        return {"auc_0_10cm": auc(errors),
-                **{f"pass_{round(t * 100)}cm": float(r)
-                   for t, r in zip(THRESHOLDS_M, pass_rates(errors, THRESHOLDS_M))},
-                "median_m": float(np.median(found)) if len(found) else None}
-
-    return {"model": str(model.path), "backend": model.backend, "data": str(root), "split": split,
-            "object": {"obj_id": obj.obj_id, "name": obj.name, "symmetric": symmetric},
-            "metric": "ADD-S" if symmetric else "ADD", "images": images_seen, "instances": len(matches),
-            "detected": int(np.isfinite(add).sum()), "misses": int((~np.isfinite(add)).sum()),
-            "false_positives": false_positives, "min_visibility": min_visibility,
-            "result": summary(metric), "ADD": summary(add), "ADD-S": summary(adds),
-            "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
-                              "add_m": m.add_m if np.isfinite(m.add_m) else None,
-                              "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
-                             for m in matches]}
+    report = {"model": str(model.path), "backend": model.backend, "data": str(root), "split": split,
+              "object": {"obj_id": obj.obj_id, "name": obj.name, "symmetric": symmetric},
+              "metric": "ADD-S" if symmetric else "ADD", "images": images_seen, "instances": len(matches),
+              "detected": int(np.isfinite(add).sum()), "misses": int((~np.isfinite(add)).sum()),
+              "false_positives": false_positives, "min_visibility": min_visibility,
+              "result": summary(adds if symmetric else add), "ADD": summary(add), "ADD-S": summary(adds),
+              "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
+                                "add_m": m.add_m if np.isfinite(m.add_m) else None,
+                                "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
+                               for m in matches]}
+    if refine:
+        r_add, r_adds = (np.array([e[k] for e in refined_errors], float).reshape(-1) for k in (0, 1))
+        report["refined"] = {"rejected": rejected, "misses": int((~np.isfinite(r_add)).sum()),
+                             "result": summary(r_adds if symmetric else r_add), "ADD": summary(r_add),
+                             "ADD-S": summary(r_adds)}
+        for entry, (e_add, e_adds) in zip(report["per_instance"], refined_errors):
+            entry["refined_add_m"] = e_add if np.isfinite(e_add) else None
+            entry["refined_adds_m"] = e_adds if np.isfinite(e_adds) else None
+    return report
 
 
 def write_report(report: dict, out: str | Path) -> tuple[Path, Path]:
-    """``out``/eval.json and ``out``/eval_curve.png (pass rate against threshold for ADD and ADD-S)."""
+    """``out``/eval.json and ``out``/eval_curve.png (pass rate against threshold for ADD and ADD-S, and with
+    depth refinement when the report has it)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     json_path = write_atomic(out / "eval.json", lambda f: f.write(json.dumps(report, indent=1).encode()))
     thresholds = np.linspace(0, AUC_MAX_M, 201)
     series = {}
-    for name in ("ADD", "ADD-S"):
-        errors = [m[name.lower().replace("-", "") + "_m"] for m in report["per_instance"]]
-        errors = np.array([np.inf if e is None else e for e in errors], float)
-        series[f"{name} (AUC {report[name]['auc_0_10cm']:.3f})"] = (thresholds * 100, pass_rates(errors, thresholds))
+    for prefix, label in (("", ""), ("refined_", " + depth")):
+        if prefix and "refined" not in report:
+            continue
+        for name in ("ADD", "ADD-S"):
+            errors = [m[prefix + name.lower().replace("-", "") + "_m"] for m in report["per_instance"]]
+            errors = np.array([np.inf if e is None else e for e in errors], float)
+            figures = report["refined"] if prefix else report
+            series[f"{name}{label} (AUC {figures[name]['auc_0_10cm']:.3f})"] = (thresholds * 100,
+                                                                                pass_rates(errors, thresholds))
     chart = line_chart(series, f"{report['object']['name']}: {report['instances']} instances, "
                        f"{report['misses']} missed", "threshold (cm)", "pass rate", y_range=(0, 1))
     return json_path, images.write_image(out / "eval_curve.png", chart)

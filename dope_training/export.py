@@ -6,8 +6,8 @@ last stage's ``beliefs`` [B, 9, H/8, W/8] and ``affinities`` [B, 16, H/8, W/8]; 
 are dynamic. metadata_props hold ``variant``, ``stride``, ``input`` (the layout and range above),
 ``mean``, ``std`` (JSON lists) and ``config`` (the model's config as JSON, for ``model.build_model``); an
 export from a training checkpoint adds ``object`` (the TargetObject as JSON: obj_id, name, model box in
-metres, symmetric) and ``input_short_side`` (px: inference scales images so that their shorter side has
-this length, the scale the network was trained at).
+metres, symmetric), ``input_short_side`` and ``input_focal_px`` (px: the scale the network was trained
+at, ``data.input_scale``, which inference reproduces).
 """
 
 from __future__ import annotations
@@ -109,7 +109,8 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, opset: int = 17,
     and reported. Returns (path, max abs difference)."""
     state = load_checkpoint(checkpoint)
     model = model_from_checkpoint(state)
-    metadata = {"object": json.dumps(state["object"]), "input_short_side": str(state["train_config"]["size"])}
+    metadata = {"object": json.dumps(state["object"]), "input_short_side": str(state["train_config"]["size"]),
+                "input_focal_px": str(state["train_config"].get("focal_px", 0.0))}
     path = export_onnx(model, path, opset, metadata)
     diff = check_parity(model, path, [(1, 240, 320), (2, 64, 96)])
     if diff > tolerance:

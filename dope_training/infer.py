@@ -1,12 +1,13 @@
 """Object poses from an image with a trained DOPE network: onnxruntime (CPU or CUDA provider) on an exported
 ONNX file, or torch on a training checkpoint.
 
-Steps: the image is scaled so that its shorter side has the length the network was trained at (the
-training crops' nominal scale, ``input_short_side``), padded right/bottom to a multiple of 8, run; belief
-peaks are grouped into instances by the affinities (``decode.find_keypoints``); the keypoints are taken back
-to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as cv2.resize samples); PnP
-(``pnp.solve_pose``: SQPnP then Levenberg-Marquardt) with the camera K gives the pose. Missing corners do
-not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are solved, see ``pnp``.
+Steps: the image is scaled to the training crops' nominal scale (``data.input_scale``: its fx becomes
+``input_focal_px``, or with DOPE's policy its shorter side ``input_short_side``), padded right/bottom to a
+multiple of 8, run; belief peaks are grouped into instances by the affinities (``decode.find_keypoints``);
+the keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as
+cv2.resize samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt) with the camera K gives the
+pose. Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are
+solved, see ``pnp``. With a depth image, each pose is then refined against it (``refine.refine_pose``).
 """
 
 from __future__ import annotations
@@ -20,8 +21,10 @@ import numpy as np
 import torch
 
 from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_checkpoint
+from dope_training.data import input_scale
 from dope_training.decode import find_keypoints
 from dope_training.pnp import solve_pose
+from dope_training.refine import Refinement, refine_pose
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
 
@@ -30,18 +33,30 @@ STRIDE = 8
 
 @dataclass
 class ObjectPose:
-    """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes), the centroid's belief,
-    keypoints [9, 2] in image pixels (NaN where not found) and the mean reprojection error (px)."""
+    """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes) from DOPE + PnP, the
+    centroid's belief, keypoints [9, 2] in image pixels (NaN where not found), the mean reprojection error
+    (px) and, when a depth image was given, the depth refinement of T (``refine.Refinement``)."""
 
     T: np.ndarray
     score: float
     keypoints: np.ndarray
     reprojection_error: float
+    refinement: Refinement | None = None
+
+    @property
+    def refined(self) -> np.ndarray | None:
+        """The refined T_cam_obj [4, 4] when depth refinement accepted it, else None."""
+        return self.refinement.T if self.refinement is not None and self.refinement.accepted else None
 
     def to_json(self) -> dict:
-        return {"R": self.T[:3, :3].tolist(), "t_m": self.T[:3, 3].tolist(), "score": self.score,
-                "keypoints_px": [None if np.isnan(p).any() else p.tolist() for p in self.keypoints],
-                "reprojection_error_px": self.reprojection_error}
+        out = {"R": self.T[:3, :3].tolist(), "t_m": self.T[:3, 3].tolist(), "score": self.score,
+               "keypoints_px": [None if np.isnan(p).any() else p.tolist() for p in self.keypoints],
+               "reprojection_error_px": self.reprojection_error}
+        if self.refinement is not None:
+            r = self.refinement
+            out["refined"] = {"accepted": r.accepted, "R": r.T[:3, :3].tolist(), "t_m": r.T[:3, 3].tolist(),
+                              "fitness": r.fitness, "rmse_m": r.rmse_m, "reason": r.reason}
+        return out
 
 
 class DopeModel:
@@ -76,6 +91,7 @@ class DopeModel:
             raise PegasusError(f"{path}: no object/input_short_side metadata; export it with `pegasus export`")
         self.object = TargetObject(**json.loads(meta["object"]))
         self.short_side = int(meta["input_short_side"])
+        self.focal_px = float(meta.get("input_focal_px", 0.0))
         self.backend = "onnxruntime-" + ("cuda" if use_cuda else "cpu")
         self.model = None
 
@@ -87,13 +103,14 @@ class DopeModel:
         self.model = model_from_checkpoint(state).to(self.device)
         self.object = TargetObject(**state["object"])
         self.short_side = int(state["train_config"]["size"])
+        self.focal_px = float(state["train_config"].get("focal_px", 0.0))
         self.backend = f"torch-{self.device.type}"
 
-    def maps(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
-        """The last stage's beliefs [9, h, w] and affinities [16, h, w] for an RGB image [H, W, 3] uint8, and
-        the (x, y) scale from image to network-input pixels."""
+    def maps(self, image: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+        """The last stage's beliefs [9, h, w] and affinities [16, h, w] for an RGB image [H, W, 3] uint8 seen
+        with intrinsics K [3, 3], and the (x, y) scale from image to network-input pixels."""
         h, w = image.shape[:2]
-        s = self.short_side / min(h, w)
+        s = input_scale((h, w), K, self.short_side, self.focal_px)
         nw, nh = max(round(w * s), 1), max(round(h * s), 1)
         resized = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
         pw, ph = -nw % STRIDE, -nh % STRIDE
@@ -107,14 +124,23 @@ class DopeModel:
         return beliefs[0], affinities[0], (nw / w, nh / h)
 
     def estimate(self, image: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
-                 min_score: float = 0.1) -> list[ObjectPose]:
+                 min_score: float = 0.1, depth_m: np.ndarray | None = None) -> list[ObjectPose]:
         """Poses of the object's instances in an RGB image [H, W, 3] uint8 seen with intrinsics K [3, 3]
-        (and OpenCV distortion ``dist``), best score first; instances PnP cannot solve are left out."""
-        beliefs, affinities, (sx, sy) = self.maps(image)
+        (and OpenCV distortion ``dist``), best score first; instances PnP cannot solve are left out. With
+        ``depth_m`` [H, W] (metres, aligned to the image, 0 = none) each pose is also refined against it."""
+        if depth_m is not None and self.object.surface_points is None:
+            raise PegasusError(f"{self.path}: this model carries no surface points of its object (trained on a "
+                               "DOPE/NDDS folder), so it cannot be refined with depth")
+        beliefs, affinities, (sx, sy) = self.maps(image, K)
         poses = []
         for det in find_keypoints(beliefs, affinities, stride=STRIDE, min_score=min_score):
             keypoints = (det.keypoints + 0.5) / [sx, sy] - 0.5
             solved = solve_pose(keypoints, self.cuboid, K, dist)
-            if solved is not None:
-                poses.append(ObjectPose(solved[0], det.score, keypoints, solved[1]))
+            if solved is None:
+                continue
+            pose = ObjectPose(solved[0], det.score, keypoints, solved[1])
+            if depth_m is not None:
+                pose.refinement = refine_pose(pose.T, depth_m, K, np.asarray(self.object.surface_points),
+                                              np.asarray(self.object.surface_normals), self.object.symmetry_axis)
+            poses.append(pose)
         return poses

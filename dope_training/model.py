@@ -126,6 +126,9 @@ def load_vgg19_weights(model: DopeNetwork, path=None) -> bool:
     return True
 
 
-def dope_loss(outputs, beliefs: torch.Tensor, affinities: torch.Tensor) -> torch.Tensor:
-    """Sum over stages of MSE(beliefs) + MSE(affinities); targets [B, 9|16, h, w]."""
-    return sum(nn.functional.mse_loss(b, beliefs) + nn.functional.mse_loss(a, affinities) for b, a in outputs)
+def dope_loss(outputs, beliefs: torch.Tensor, affinities: torch.Tensor, peak_weight: float = 0.0) -> torch.Tensor:
+    """Sum over stages of MSE(beliefs) + MSE(affinities); targets [B, 9|16, h, w]. With ``peak_weight`` w > 0
+    each belief cell's squared error is weighted by 1 + w * target (DOPE: 0), so the few cells near a
+    keypoint are not drowned by the empty rest of the map."""
+    weight = 1.0 + peak_weight * beliefs
+    return sum((weight * (b - beliefs) ** 2).mean() + nn.functional.mse_loss(a, affinities) for b, a in outputs)

@@ -30,6 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+import trimesh
 import yaml
 from tqdm import tqdm
 
@@ -47,6 +48,21 @@ from pegasus_gen.io.plots import line_chart
 RESUMABLE_KEYS = {"epochs", "device", "loader_workers", "keep_checkpoints", "checkpoint_every", "out"}
 
 
+SURFACE_SAMPLES = 500  # model surface points a checkpoint carries for depth refinement
+
+
+def surface_samples(root: Path, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """Points and unit normals [SURFACE_SAMPLES, 3] (metres, model frame) on the BOP model of ``obj_id``
+    (mm), area-uniform, the same for every run."""
+    path = root / "models" / f"obj_{obj_id:06d}.ply"
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except (OSError, ValueError) as exc:
+        raise PegasusError(f"{path}: cannot read the object's model ({exc})") from None
+    points, faces = trimesh.sample.sample_surface(mesh, SURFACE_SAMPLES, seed=0)
+    return points / 1000.0, mesh.face_normals[faces]
+
+
 def load_training_samples(cfg: TrainConfig):
     """(samples from every ``cfg.data`` entry, the TargetObject)."""
     samples, target = [], None
@@ -59,7 +75,10 @@ def load_training_samples(cfg: TrainConfig):
             info = read_json(root / "models" / "models_info.json")[str(obj_id)]
             name = next((n for n, i in names.items() if i == obj_id), str(obj_id))
             symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous"))
-            found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric)
+            points, normals = surface_samples(root, obj_id)
+            axis = next((s["axis"] for s in info.get("symmetries_continuous", [])), None)
+            found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric,
+                                 points.tolist(), normals.tolist(), axis)
             samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility)
         elif root.is_dir():
             if cfg.object_size is None:
@@ -75,6 +94,14 @@ def load_training_samples(cfg: TrainConfig):
     if not samples:
         raise PegasusError(f"no image shows {cfg.object!r} at visibility >= {cfg.min_visibility} in {cfg.data}")
     return samples, target
+
+
+def learning_rate(cfg: TrainConfig, step: int, total_steps: int) -> float:
+    """The learning rate of optimisation step ``step`` (0-based) of ``total_steps``: ``cfg.lr``, or with the
+    cosine schedule lr * (0.01 + 0.99 * (1 + cos(pi * step / total_steps)) / 2)."""
+    if cfg.schedule == "constant":
+        return cfg.lr
+    return cfg.lr * (0.01 + 0.99 * (1 + math.cos(math.pi * min(step / max(total_steps, 1), 1.0))) / 2)
 
 
 class ShardSampler(torch.utils.data.Sampler):
@@ -213,11 +240,11 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
     net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
         if world > 1 else model
 
-    dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed)
+    dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
     loader_args = dict(batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.loader_workers,
                        pin_memory=device.type == "cuda")
-    still = DopeDataset(samples[:1], cfg.size, Augment(enabled=False))
+    still = DopeDataset(samples[:1], cfg.size, Augment(enabled=False), focal_px=cfg.focal_px)
     snapshot_crop = still.item(0)[0]
     snapshot_target = still[0][1].numpy()
 
@@ -245,9 +272,12 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
                 image, beliefs, affinities = (t.to(device, non_blocking=True) for t in (image, beliefs, affinities))
                 with torch.autocast(device.type, dtype=torch.float16, enabled=use_amp):
                     outputs = net(image)
-                loss = dope_loss([(b.float(), a.float()) for b, a in outputs], beliefs, affinities)
+                loss = dope_loss([(b.float(), a.float()) for b, a in outputs], beliefs, affinities, cfg.peak_weight)
                 optimiser.zero_grad(set_to_none=True)
                 scaler.scale(loss).backward()
+                lr = learning_rate(cfg, step, per_epoch * cfg.epochs)
+                for group in optimiser.param_groups:
+                    group["lr"] = lr
                 scaler.step(optimiser)
                 scaler.update()
                 counts = torch.tensor([loss.item() * len(image), float(len(image))], dtype=torch.float64)
@@ -260,7 +290,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
                 bar.set_postfix(epoch=f"{epoch + 1}/{cfg.epochs}", step=f"{batch + 1}/{per_epoch}",
                                 loss=f"{counts[0].item() / counts[1].item():.4g}")
                 rows.append({"step": step, "epoch": epoch, "loss": counts[0].item() / counts[1].item(),
-                             "images": counts[1].item(), "images_per_s": rate, "lr": cfg.lr})
+                             "images": counts[1].item(), "images_per_s": rate, "lr": lr})
         if rank == 0 and ((epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs):
             _write_losses(out / "loss.csv", rows)
             images.write_image(out / "loss.png", loss_curve(rows))

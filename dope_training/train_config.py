@@ -21,9 +21,16 @@ class TrainConfig(BaseModel):
     variant: Literal["full", "light"] = Field(
         "light", description="full: the original DOPE (GPU); light: 3 narrow stages for CPU")
     size: int = Field(0, ge=0, description="crop size, px (default: full 400, light 320)")
+    focal_px: float = Field(0.0, ge=0.0, description="network-input focal length, px: images are scaled so that "
+                            "their fx becomes this (objects look alike to the network from any camera); 0: "
+                            "DOPE's policy, the image's shorter side fitted into the crop")
     epochs: int = Field(10, gt=0, description="epochs in all (a resumed run trains up to this)")
     batch_size: int = Field(8, gt=0, description="per process")
     lr: float = Field(0.0, ge=0.0, description="Adam learning rate (default: full 1e-4, light 1e-3)")
+    schedule: Literal["constant", "cosine"] = Field(
+        "constant", description="learning rate over the run: constant (DOPE), or cosine decay to 1/100 of lr")
+    peak_weight: float = Field(0.0, ge=0.0, description="belief cells' squared error weighted by 1 + this * target "
+                                                        "(DOPE: 0)")
     min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
                                             "nominal-scale crops around the instances only)")

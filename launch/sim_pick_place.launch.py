@@ -5,7 +5,8 @@ object's pose, the robot node picks through the real ur-rtde client, the evaluat
 pegasus launch launch/sim_pick_place.launch.py model:=MODEL.onnx [attempts:=20 objects:=a,b ...]
 (or `pegasus sim-grasp`). The cell: the environment's table top is the world's z = 0; the robot's base
 stands on it at world (0.45, 0, 0), facing -x; objects appear in base x -0.55..-0.38, y -0.12..0.12; the
-basket stands at base (-0.25, -0.28); the camera looks down at the pick area from world (0, -0.35, 0.55).
+basket stands at base (-0.25, -0.28); the camera looks down at the pick area from world (0, -0.35, 0.55)
+and renders depth too, against which the inference node refines DOPE's poses (``use_pose``).
 """
 
 import numpy as np
@@ -33,6 +34,8 @@ def generate_launch_description():
         DeclareLaunchArgument("model", default_value="",
                               description="DOPE ONNX export (empty with pose_source:=ground_truth)"),
         DeclareLaunchArgument("pose_source", default_value="dope", choices=["dope", "ground_truth"]),
+        DeclareLaunchArgument("use_pose", default_value="refined", choices=["raw", "refined"],
+                              description="DOPE's pose as it is, or refined with the camera's depth"),
         DeclareLaunchArgument("objects", default_value="noodle_cup_red", description="asset names, comma-separated"),
         DeclareLaunchArgument("attempts", default_value="20"),
         DeclareLaunchArgument("environment", default_value="wooden_table"),
@@ -48,7 +51,8 @@ def generate_launch_description():
             "source": "sim", "host": arg("host"), "library": arg("library"), "environment": arg("environment"),
             "T_world_base": T_WORLD_BASE.ravel().tolist(), "T_world_cam": T_WORLD_CAM.ravel().tolist(),
             "width": 640, "height": 480, "rate": 2.0, "device": arg("device")}]),
-        Node(package="pegasus", executable="inference_node", parameters=[{"model": arg("model")}]),
+        Node(package="pegasus", executable="inference_node", parameters=[{
+            "model": arg("model"), "refine": True, "use_pose": arg("use_pose")}]),
         Node(package="pegasus", executable="robot_node", parameters=[{
             "host": arg("host"), "hand_eye": T_BASE_CAM.ravel().tolist(), "basket": BASKET,
             "wait_for_attempt": True, "speed": 0.3}]),

@@ -1,4 +1,6 @@
-"""camera_node: publishes ``image`` (sensor_msgs/Image, rgb8) and ``camera_info`` at ``rate`` Hz.
+"""camera_node: publishes ``image`` (sensor_msgs/Image, rgb8) and ``camera_info`` at ``rate`` Hz, and
+``depth`` (32FC1, metres along the optical axis, 0 = none; same header as its image, published before it)
+when the source has depth (``sim``).
 
 Parameters: ``source`` = folder | oak | sim; ``folder`` (images, in name order, looping when ``loop``; with
 ``wait_for_folder`` a folder that does not hold images yet is waited for, as in the generate-train-deploy
@@ -33,7 +35,8 @@ class FolderSource:
             raise PegasusError(f"camera_node: no images ({', '.join(IMAGE_SUFFIXES)}) in {folder!r}")
         self.loop, self.index = loop, 0
 
-    def read(self) -> np.ndarray | None:
+    def read(self) -> tuple[np.ndarray, None] | None:
+        """(the next image [H, W, 3] uint8 RGB, no depth), None at the end."""
         if self.index >= len(self.paths):
             if not self.loop:
                 return None
@@ -42,7 +45,7 @@ class FolderSource:
         if image is None:
             raise PegasusError(f"camera_node: cannot read {self.paths[self.index]}")
         self.index += 1
-        return np.ascontiguousarray(image[..., ::-1])
+        return np.ascontiguousarray(image[..., ::-1]), None
 
     def intrinsics(self, width: int, height: int):
         return None
@@ -66,8 +69,8 @@ class OakSource:
         except RuntimeError as exc:
             raise PegasusError(f"camera_node: no OAK camera could be opened ({exc}); is one attached?") from exc
 
-    def read(self) -> np.ndarray:
-        return np.ascontiguousarray(self.queue.get().getCvFrame()[..., ::-1])
+    def read(self) -> tuple[np.ndarray, None]:
+        return np.ascontiguousarray(self.queue.get().getCvFrame()[..., ::-1]), None
 
     def intrinsics(self, width: int, height: int):
         return self.K
@@ -101,7 +104,8 @@ class SimSource:
                 continue
         return poses
 
-    def read(self) -> np.ndarray:
+    def read(self) -> tuple[np.ndarray, np.ndarray]:
+        """The cell as the camera sees it: RGB [H, W, 3] uint8 and depth [H, W] float32 metres (0 = none)."""
         from pegasus_gen.io.images import rgb_to_uint8
         from pegasus_gen.render.renderer import render
 
@@ -112,7 +116,7 @@ class SimSource:
                 self.splats[asset] = self.library.get(asset).splats
             parts.append(self.splats[asset].transformed(T).with_label(k + 1))
         out = render(parts, self.K, self.T_cam_world, self.width, self.height, device=self.device)
-        return rgb_to_uint8(out.rgb)
+        return rgb_to_uint8(out.rgb), np.nan_to_num(out.depth, nan=0.0, posinf=0.0).astype(np.float32)
 
     def intrinsics(self, width: int, height: int):
         return self.K
@@ -142,6 +146,7 @@ class CameraNode(Node):
                                     w, h, self.camera_matrix(w, h), p["device"])
         self.image_pub = self.create_publisher(msgs.Image, "image", 5)
         self.info_pub = self.create_publisher(msgs.CameraInfo, "camera_info", 5)
+        self.depth_pub = self.create_publisher(msgs.Image, "depth", 5)
         self.frames = 0
         self.create_timer(1.0 / float(p["rate"]), self.tick)
 
@@ -163,15 +168,18 @@ class CameraNode(Node):
                 self.source = FolderSource(self.params["folder"], self.params["loop"])
             except PegasusError:
                 return
-        image = self.source.read()
-        if image is None:
+        frame = self.source.read()
+        if frame is None:
             self.shutdown_requested = True
             return
+        image, depth = frame
         header = msgs.Header(frame_id=self.params["frame_id"])
         header.stamp = self.get_clock().now().to_msg()
         h, w = image.shape[:2]
         info = msgs.CameraInfo(header=header, height=h, width=w)
         info.k = self.camera_matrix(w, h).ravel().tolist()
+        if depth is not None:
+            self.depth_pub.publish(msgs.numpy_to_image(depth, "32FC1", msgs.Image, header))
         self.image_pub.publish(msgs.numpy_to_image(image, "rgb8", msgs.Image, header))
         self.info_pub.publish(info)
         self.frames += 1

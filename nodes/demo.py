@@ -2,7 +2,7 @@
 assets, an evaluation on frames of an environment left out of training, the closed-loop grasp evaluation
 in the simulated cell, and an HTML report with the figures.
 
-Small settings (default) fit a 2-core CPU in about 13 minutes; ``full`` gives the GPU-scale run (a
+Small settings (default) fit a 2-core CPU in about 20 minutes; ``full`` gives the GPU-scale run (a
 5,000-frame dataset at 640x480, the full DOPE network, 20 grasp attempts over two objects).
 """
 
@@ -15,10 +15,17 @@ import time
 from pathlib import Path
 from typing import Literal
 
+import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
 from nodes.launch import run as run_launch
 from pegasus_gen.errors import PegasusError
+
+# The simulated cell's camera (sim_pick_place.launch.py): 640x480, 60 degree field of view (fx 554 px), about
+# 0.55-0.8 m from the pick area, looking down at 45-65 degrees.
+CELL_CAMERA_FX = 554.0
+HELD_OUT_CAMERA = ["camera.width=640", "camera.height=480", "camera.fov_deg=60", "trajectory.distance=[0.55, 0.8]",
+                   "trajectory.elevation_deg=[45, 65]"]
 
 
 class DemoSettings(BaseModel):
@@ -30,8 +37,13 @@ class DemoSettings(BaseModel):
     frames: int = Field(gt=0, description="frames per scene")
     width: int = Field(gt=0, description="image width, px")
     height: int = Field(gt=0, description="image height, px")
+    camera_fx: float = Field(CELL_CAMERA_FX, gt=0, description="training camera focal length, px (the cell "
+                             "camera's, so objects appear at the size the robot's camera sees them)")
+    distance: tuple[float, float] = Field((0.45, 0.85), description="training camera distance range, m")
+    elevation_deg: tuple[float, float] = Field((30.0, 70.0), description="training camera elevation range")
     variant: Literal["full", "light"] = Field(description="DOPE network variant")
     size: int = Field(gt=0, description="training crop size, px")
+    focal_px: float = Field(CELL_CAMERA_FX, ge=0, description="network-input focal length, px")
     epochs: int = Field(gt=0, description="training epochs")
     attempts: int = Field(gt=0, description="grasp attempts in the simulated cell")
     objects: str = Field(description="assets grasped (comma-separated); the first is the trained object")
@@ -47,9 +59,8 @@ class DemoSettings(BaseModel):
 
     @classmethod
     def small(cls) -> "DemoSettings":
-        """Fits a 2-core CPU in about 13 minutes (160 px crops: the light model leaves its all-zero start
-        sooner on small crops)."""
-        return cls(scenes=8, frames=12, width=320, height=240, variant="light", size=160, epochs=80, attempts=10,
+        """Fits a 2-core CPU in about 20 minutes."""
+        return cls(scenes=80, frames=12, width=320, height=240, variant="light", size=160, epochs=12, attempts=10,
                    objects="noodle_cup_red", device="cpu", time_scale=3.0)
 
     @classmethod
@@ -57,6 +68,35 @@ class DemoSettings(BaseModel):
         """The GPU-scale run: 5,000 frames at 640x480, the full DOPE network, 20 grasp attempts."""
         return cls(scenes=200, frames=25, width=640, height=480, variant="full", size=400, epochs=30, attempts=20,
                    objects="noodle_cup_red", device="auto", time_scale=2.0)
+
+    def dataset_config(self, library: str | Path) -> dict:
+        """The training dataset's generation config (``pegasus generate`` YAML keys)."""
+        target = self.objects.split(",")[0]
+        return {"library": str(library), "environments": list(self.environments),
+                "objects": [{"asset": target, "count": [1, 2]}] + [{"asset": d, "count": [0, 1]}
+                                                                   for d in self.distractors],
+                "scenes": self.scenes, "frames_per_scene": self.frames, "device": self.device,
+                "camera": {"width": self.width, "height": self.height, "fx": self.camera_fx, "fy": self.camera_fx},
+                "trajectory": {"distance": list(self.distance), "elevation_deg": list(self.elevation_deg)}}
+
+
+def held_out_overrides(library: str | Path, target: str, environment: str = "store_shelf", scenes: int = 2,
+                       frames: int = 10, device: str = "cpu") -> list[str]:
+    """``pegasus generate`` overrides of a held-out set: ``target`` (1-2 per scene) in ``environment`` seen
+    with the cell camera's intrinsics, distances and angles (``HELD_OUT_CAMERA``), seed 1000."""
+    return [f"library={library}", f"environments=[{environment}]", f"scenes={scenes}", f"frames_per_scene={frames}",
+            f"device={device}", "seed=1000", f"objects=[{{asset: {target}, count: [1, 2]}}]", *HELD_OUT_CAMERA]
+
+
+def stage_times(t0: float, dataset: Path, train_run: Path, t_end: float) -> dict[str, float]:
+    """Seconds of each stage of the generate-train-deploy launch, from when its outputs were written
+    (wall clock ``t0`` and ``t_end``: the launch's start and end): generate (until training wrote its
+    config), train (until the last checkpoint), export (until model.onnx), infer (the rest)."""
+    marks = [t0] + [(p.stat().st_mtime if p.is_file() else t_end)
+                    for p in (train_run / "train_config.yaml", train_run / "last.pt", train_run / "model.onnx")]
+    marks.append(t_end)
+    names = ("generate (dataset)", "train", "export (ONNX)", "infer (inference node)")
+    return {name: max(b - a, 0.0) for name, a, b in zip(names, marks, marks[1:])}
 
 
 def run_demo(out: str | Path, full: bool = False, library: str | None = None, host: str = "127.0.0.1") -> Path:
@@ -71,22 +111,20 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     out.mkdir(parents=True, exist_ok=True)
     lib = AssetLibrary(library)
     build_demo_library(lib)
-    lib_args = [f"library={lib.root}"]
     times = {}
 
-    t0 = time.monotonic()
     dataset, train_run = out / "dataset", out / "train"
     target = s.objects.split(",")[0]
-    objects = "[" + ", ".join([f"{{asset: {target}, count: [1, 2]}}"]
-                              + [f"{{asset: {d}, count: [0, 1]}}" for d in s.distractors]) + "]"
+    config = out / "dataset_config.yaml"
+    config.write_text(yaml.safe_dump(s.dataset_config(lib.root), sort_keys=False))
+    t0 = time.time()
     nodes = run_launch("generate_train_deploy.launch.py", [
-        f"object:={target}", f"output:={dataset}", f"run:={train_run}", f"scenes:={s.scenes}",
+        f"config:={config}", f"object:={target}", f"output:={dataset}", f"run:={train_run}", f"scenes:={s.scenes}",
         f"frames:={s.frames}", f"width:={s.width}", f"height:={s.height}", f"epochs:={s.epochs}",
-        f"variant:={s.variant}", f"size:={s.size}", f"device:={s.device}",
-        f"images:={dataset / 'train_pbr' / '000000' / 'rgb'}",
-        f"max_images:={s.infer_images}", f"library:={lib.root}", f"environments:=[{', '.join(s.environments)}]",
-        f"objects_config:={objects}"])
-    times["generate, train, export, infer (launch)"] = time.monotonic() - t0
+        f"variant:={s.variant}", f"size:={s.size}", f"focal_px:={s.focal_px}", f"device:={s.device}",
+        f"images:={dataset / 'train_pbr' / '000000' / 'rgb'}", f"max_images:={s.infer_images}",
+        f"library:={lib.root}"])
+    times.update(stage_times(t0, dataset, train_run, time.time()))
     model = train_run / "model.onnx"
     if not model.is_file():
         raise PegasusError(f"the generate-train-deploy loop ended without a model ({[n.get_name() for n in nodes]})")
@@ -97,27 +135,37 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     from pegasus_gen.dataset.config import load_config
     from pegasus_gen.dataset.generate import generate
 
-    held_out = generate(load_config(None, [f"output={out / 'held_out'}", *lib_args, "scenes=1",
-                                           f"frames_per_scene={max(s.frames, 10)}", f"camera.width={s.width}",
-                                           f"camera.height={s.height}", f"device={s.device}",
-                                           f"environments=[{s.held_out_environment}]", "seed=1000",
-                                           f"objects=[{{asset: {target}, count: [1, 2]}}]"]))
-    report = evaluate(DopeModel(model), held_out, "train_pbr")
-    eval_json, eval_png = write_report(report, out / "eval_held_out")
+    held_out = generate(load_config(None, [f"output={out / 'held_out'}", *held_out_overrides(
+        lib.root, target, s.held_out_environment, device=s.device)]))
+    report = evaluate(DopeModel(model), held_out, "train_pbr", refine=True)
+    write_report(report, out / "eval_held_out")
     times["evaluate on a held-out environment"] = time.monotonic() - t0
 
     t0 = time.monotonic()
     run_launch("sim_pick_place.launch.py", [
         f"model:={model}", f"attempts:={s.attempts}", f"objects:={s.objects}", f"library:={lib.root}",
-        f"host:={host}", f"time_scale:={s.time_scale}", f"report:={out / 'sim_grasp'}", f"device:={s.device}"])
+        f"host:={host}", f"time_scale:={s.time_scale}", f"report:={out / 'sim_grasp'}", f"device:={s.device}",
+        "use_pose:=refined"])
     times["closed-loop grasping (simulated cell)"] = time.monotonic() - t0
     grasp = json.loads((out / "sim_grasp" / "report.json").read_text())
+    summary = {"settings": s.model_dump(mode="json"), "stage_seconds": times,
+               "held_out": {"instances": report["instances"], "metric": report["metric"],
+                            "dope": report["result"], "dope_depth": report["refined"]["result"],
+                            "rejected_by_refinement": report["refined"]["rejected"]},
+               "grasps": {k: grasp[k] for k in ("attempts", "successes", "failure_causes", "median_adds_m")}}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
     return write_html(out, s, report, grasp, times, train_run)
 
 
+def _accuracy_row(name: str, r: dict) -> str:
+    median = "-" if r["median_m"] is None else f"{100 * r['median_m']:.1f}"
+    return (f"<tr><td>{name}</td><td>{r['auc_0_10cm']:.3f}</td><td>{r['pass_2cm']:.2f}</td>"
+            f"<td>{r['pass_5cm']:.2f}</td><td>{r['pass_10cm']:.2f}</td><td>{median}</td></tr>")
+
+
 def write_html(out: Path, s: DemoSettings, evaluation: dict, grasp: dict, times: dict, train_run: Path) -> Path:
-    """``out``/report.html: settings, timings, the loss curve, a belief snapshot, the ADD curve and the
-    grasp strip."""
+    """``out``/report.html: settings, the time of each stage, the loss curve, a belief snapshot, held-out
+    accuracy of DOPE alone and with depth refinement, the ADD curves and the grasp results and strip."""
     figures = out / "figures"
     figures.mkdir(exist_ok=True)
     snapshots = sorted((train_run / "beliefs").glob("*.png"))
@@ -126,20 +174,25 @@ def write_html(out: Path, s: DemoSettings, evaluation: dict, grasp: dict, times:
                       (out / "sim_grasp" / "strip.png", "grasp_strip.png")):
         if src is not None and src.is_file():
             shutil.copy(src, figures / name)
-    r = evaluation["result"]
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.0f} s</td></tr>" for k, v in times.items())
+    rows += f"<tr><td><b>total</b></td><td><b>{sum(times.values()) / 60:.1f} min</b></td></tr>"
+    accuracy = "".join(_accuracy_row(name, r) for name, r in (
+        ("DOPE", evaluation["result"]), ("DOPE + depth refinement", evaluation["refined"]["result"])))
     causes = ", ".join(f"{k}: {v}" for k, v in grasp["failure_causes"].items()) or "none"
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>PEGASUS demo</title>
 <style>body{{font-family:sans-serif;max-width:1000px;margin:auto}} img{{max-width:100%}} td{{padding:2px 10px}}</style>
 </head><body><h1>PEGASUS demo: generate, train, deploy, grasp</h1>
-<p>Settings: {s.scenes} scenes x {s.frames} frames at {s.width}x{s.height}; DOPE-{s.variant} on {s.size} px crops,
-{s.epochs} epochs on {s.device}; {s.attempts} grasp attempts ({html.escape(s.objects)}).</p>
+<p>Settings: {s.scenes} scenes x {s.frames} frames at {s.width}x{s.height} (fx {s.camera_fx:g} px);
+DOPE-{s.variant} on {s.size} px crops at {s.focal_px:g} px focal length, {s.epochs} epochs on {s.device};
+{s.attempts} grasp attempts ({html.escape(s.objects)}) on depth-refined poses.</p>
 <table>{rows}</table>
 <h2>Training</h2><img src="figures/loss.png"><img src="figures/beliefs.png">
 <h2>Pose accuracy on an environment left out of training</h2>
-<p>{evaluation['object']['name']}: {evaluation['instances']} instances, {evaluation['misses']} missed;
-{evaluation['metric']} AUC (0-10 cm) {r['auc_0_10cm']:.3f}; pass rate at 2 / 5 / 10 cm
-{r['pass_2cm']:.2f} / {r['pass_5cm']:.2f} / {r['pass_10cm']:.2f}.</p><img src="figures/eval_curve.png">
+<p>{evaluation['object']['name']} in {html.escape(s.held_out_environment)}, seen with the cell camera:
+{evaluation['instances']} instances, {evaluation['misses']} missed by DOPE, {evaluation['refined']['rejected']}
+estimates rejected by the depth refinement (a rejected estimate counts as a miss).</p>
+<table><tr><th></th><th>{evaluation['metric']} AUC (0-10 cm)</th><th>pass 2 cm</th><th>pass 5 cm</th>
+<th>pass 10 cm</th><th>median (cm)</th></tr>{accuracy}</table><img src="figures/eval_curve.png">
 <h2>Closed-loop grasping in the simulated cell</h2>
 <p>{grasp['successes']} of {grasp['attempts']} objects in the basket ({grasp['pose_source']} poses); failure causes:
 {html.escape(causes)}; median ADD-S of the estimates

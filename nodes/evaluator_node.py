@@ -8,8 +8,9 @@ perfect estimator: grasping alone is measured); with dope the inference node's e
 ``objects`` is a list or a comma-separated string. The attempt ends when robot_node reports idle or failed on
 ``robot_status``, after ``timeout_s``, or when the robot has not started ``detect_timeout_s`` after the
 announcement. Success: the object lies in the basket. Failure causes: no
-detection (no pose arrived), robot error (the status's detail), missed grasp, dropped (held but not in
-the basket). Pose error: ADD and ADD-S of the first pose estimate of the attempt against the truth.
+detection (no pose arrived), implausible estimate (robot_node refused the pose and sent nothing), robot
+error (the status's detail), missed grasp, dropped (held but not in the basket). Pose error: ADD and ADD-S
+of the first pose estimate of the attempt against the truth.
 After ``attempts`` it writes ``report`` /report.json and strip.png (per attempt: the camera's overlay
 image and the outcome) and asks the launch to end. Scoring: ``robot_bridge.attempts``.
 

@@ -1,11 +1,15 @@
-"""inference_node: DOPE poses from camera images.
+"""inference_node: DOPE poses from camera images, refined with depth when the camera has it.
 
-Subscribes ``image`` (rgb8) and ``camera_info`` (K); publishes for each image ``object_pose``
-(geometry_msgs/PoseStamped of the best-scoring instance, camera frame, metres), ``detections``
-(vision_msgs/Detection3DArray: every instance with its score and model box) and ``overlay`` (the image with
-the posed boxes and keypoints). Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives on the
-``model`` topic, as trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``,
-``max_images`` (> 0: ask the launch to end after that many images).
+Subscribes ``image`` (rgb8), ``camera_info`` (K) and, with ``refine``, ``depth`` (32FC1 metres or 16UC1
+mm, aligned to the image; paired with its image by header stamp). Publishes for each image ``object_pose_raw``
+(geometry_msgs/PoseStamped of the best-scoring instance as DOPE + PnP give it, camera frame, metres),
+``object_pose_refined`` (the best-scoring instance whose depth refinement was accepted, refined),
+``object_pose`` (what the robot uses: the raw pose, or with ``use_pose`` = refined the refined one and
+nothing when it is rejected), ``detections`` (vision_msgs/Detection3DArray: every instance with its score
+and model box, refined where accepted) and ``overlay`` (the image with the posed boxes and keypoints).
+Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives on the ``model`` topic, as
+trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``, ``refine`` (bool), ``use_pose``
+(raw | refined), ``max_images`` (> 0: ask the launch to end after that many images).
 """
 
 from __future__ import annotations
@@ -15,6 +19,9 @@ import numpy as np
 from dope_training.infer import DopeModel
 from dope_training.overlay import draw_poses
 from nodes.ros import Node, latched, msgs, run_node
+from pegasus_gen.errors import PegasusError
+
+PENDING_FRAMES = 4  # images or depth images kept while waiting for their partner
 
 
 class InferenceNode(Node):
@@ -24,14 +31,25 @@ class InferenceNode(Node):
         self.device = self.declare_parameter("device", "cpu").value
         self.min_score = float(self.declare_parameter("min_score", 0.1).value)
         self.max_images = int(self.declare_parameter("max_images", 0).value)
+        self.refine = bool(self.declare_parameter("refine", False).value)
+        self.use_pose = self.declare_parameter("use_pose", "raw").value
+        if self.use_pose not in ("raw", "refined"):
+            raise PegasusError(f"inference_node: use_pose must be raw or refined, got {self.use_pose!r}")
+        if self.use_pose == "refined" and not self.refine:
+            raise PegasusError("inference_node: use_pose refined needs refine true (and a depth topic)")
         self.model = DopeModel(model, device=self.device) if model else None
         self.create_subscription(msgs.String, "model", self.on_model, latched())
         self.K = None
         self.pose_pub = self.create_publisher(msgs.PoseStamped, "object_pose", 5)
+        self.raw_pub = self.create_publisher(msgs.PoseStamped, "object_pose_raw", 5)
+        self.refined_pub = self.create_publisher(msgs.PoseStamped, "object_pose_refined", 5)
         self.detections_pub = self.create_publisher(msgs.Detection3DArray, "detections", 5)
         self.overlay_pub = self.create_publisher(msgs.Image, "overlay", 2)
         self.create_subscription(msgs.CameraInfo, "camera_info", self.on_info, 5)
         self.create_subscription(msgs.Image, "image", self.on_image, 2)
+        if self.refine:
+            self.create_subscription(msgs.Image, "depth", self.on_depth, 2)
+        self.pending = {}  # header stamp -> {"image": msg, "depth": msg}
         self.images = 0
 
     def on_model(self, msg) -> None:
@@ -41,27 +59,56 @@ class InferenceNode(Node):
     def on_info(self, msg) -> None:
         self.K = np.array(msg.k, dtype=np.float64).reshape(3, 3)
 
+    def on_depth(self, msg) -> None:
+        self._pair(msg, "depth")
+
     def on_image(self, msg) -> None:
+        if not self.refine:
+            self.process(msg, None)
+        else:
+            self._pair(msg, "image")
+
+    def _pair(self, msg, kind: str) -> None:
+        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        entry = self.pending.setdefault(stamp, {})
+        entry[kind] = msg
+        if len(entry) == 2:
+            del self.pending[stamp]
+            depth = msgs.image_to_numpy(entry["depth"]).astype(np.float64)
+            self.process(entry["image"], depth / 1000.0 if entry["depth"].encoding == "16UC1" else depth)
+        for old in sorted(self.pending)[:-PENDING_FRAMES]:
+            del self.pending[old]
+
+    def process(self, msg, depth_m: np.ndarray | None) -> None:
+        """Estimate, refine (with ``depth_m`` [H, W] metres) and publish the poses of one image."""
         if self.K is None or self.model is None:
             return  # no camera_info or no model yet
         image = msgs.image_to_numpy(msg)
-        poses = self.model.estimate(image, self.K, min_score=self.min_score)
+        poses = self.model.estimate(image, self.K, min_score=self.min_score, depth_m=depth_m)
         self.images += 1
         obj = self.model.object
         array = msgs.Detection3DArray(header=msg.header)
         for pose in poses:
+            T = pose.refined if pose.refined is not None else pose.T
             hypothesis = msgs.ObjectHypothesisWithPose()
             hypothesis.hypothesis.class_id, hypothesis.hypothesis.score = obj.name, pose.score
-            hypothesis.pose.pose = msgs.matrix_to_pose(pose.T, msgs.Pose)
+            hypothesis.pose.pose = msgs.matrix_to_pose(T, msgs.Pose)
             detection = msgs.Detection3D(header=msg.header, results=[hypothesis], id=obj.name)
-            detection.bbox.center = msgs.matrix_to_pose(pose.T, msgs.Pose)
+            detection.bbox.center = msgs.matrix_to_pose(T, msgs.Pose)
             detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = (float(v) for v in obj.bbox_size)
             array.detections.append(detection)
         self.detections_pub.publish(array)
         overlay = draw_poses(image, self.K, poses, obj)
         self.overlay_pub.publish(msgs.numpy_to_image(overlay, "rgb8", msgs.Image, msg.header))
-        if poses:
-            self.pose_pub.publish(msgs.PoseStamped(header=msg.header, pose=msgs.matrix_to_pose(poses[0].T, msgs.Pose)))
+        best = {"raw": poses[0].T if poses else None,
+                "refined": next((p.refined for p in poses if p.refined is not None), None)}
+        stamped = {name: msgs.PoseStamped(header=msg.header, pose=msgs.matrix_to_pose(T, msgs.Pose))
+                   for name, T in best.items() if T is not None}
+        for name, publisher in (("raw", self.raw_pub), ("refined", self.refined_pub)):
+            if name in stamped:
+                publisher.publish(stamped[name])
+        if self.use_pose in stamped:
+            self.pose_pub.publish(stamped[self.use_pose])
         if self.max_images and self.images >= self.max_images:
             self.shutdown_requested = True
 

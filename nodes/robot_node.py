@@ -2,12 +2,18 @@
 ur-rtde (a real robot or the simulated controller), one pick at a time.
 
 States: idle -> planning -> moving -> idle (or failed); each change is published on ``robot_status``
-(std_msgs/String, JSON: state, attempt, detail). Parameters: ``host``; ``hand_eye`` (T_base_cam, 16 numbers
-row-major); ``basket`` (floor centre x y z, base frame); ``bbox_min``/``bbox_size`` (the object's model
+(std_msgs/String, JSON: state, attempt, detail). While planning, before any command is sent (the move home
+included), the estimate is checked (``robot_bridge.plausibility``: the object resting on the table, in
+reach), the grasp is planned from the home joints' TCP pose (forward kinematics; the arm is not moved to
+get it) and the plan is checked (no fingertip in the table); a refusal sends nothing and ends the attempt
+as failed with the detail "implausible estimate: " and the reason. Only then the arm moves home and on.
+Parameters: ``host``; ``hand_eye`` (T_base_cam, 16 numbers row-major); ``basket`` (floor centre x y z, base
+frame); ``table_z`` (the table top's height, m, base frame); ``bbox_min``/``bbox_size`` (the object's model
 box, m) and ``symmetry_axis`` (object frame; [] for none); ``execute`` = pick (the whole pick-and-place)
 or pregrasp (stop above the object); ``home`` (joints, rad: each attempt starts there); ``speed``; ``dry_run``;
 ``wait_for_attempt`` (act only once per message on ``attempt``, as evaluator_node sends them; the status
-carries that attempt's number). Poses arriving while it moves are ignored.
+carries that attempt's number). Poses arriving while it moves are ignored. ``results``: per attempt,
+picked, missed, pregrasp, implausible or failed.
 """
 
 from __future__ import annotations
@@ -19,9 +25,13 @@ import numpy as np
 
 from nodes.ros import Node, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
+from robot_bridge.attempts import IMPLAUSIBLE_DETAIL
 from robot_bridge.bridge import UR5, BridgeConfig
 from robot_bridge.grasp import plan_grasp
+from robot_bridge.kinematics import fk
 from robot_bridge.pick import pick_and_place
+from robot_bridge.plausibility import plan_problem, pose_problem
+from robot_bridge.safety import SafetyEnvelope
 
 
 class RobotNode(Node):
@@ -29,6 +39,7 @@ class RobotNode(Node):
         super().__init__("robot_node", **kwargs)
         p = {name: self.declare_parameter(name, default).value for name, default in (
             ("host", "127.0.0.1"), ("hand_eye", list(np.eye(4).ravel())), ("basket", [-0.15, -0.45, 0.0]),
+            ("table_z", 0.0),
             ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
             ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),
             ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]))}
@@ -40,8 +51,10 @@ class RobotNode(Node):
         if len(p["hand_eye"]) != 16 or len(p["basket"]) != 3:
             raise PegasusError("robot_node: hand_eye needs 16 numbers (T_base_cam row-major), basket 3 (x y z)")
         self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
+        p["table_z"] = float(p["table_z"])
         self.params = p
-        self.robot = UR5(BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"])))
+        self.robot = UR5(BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"]),
+                                      envelope=SafetyEnvelope(table_z=p["table_z"])))
         self.status_pub = self.create_publisher(msgs.String, "robot_status", 10)
         self.create_subscription(msgs.PoseStamped, "object_pose", self.on_pose, 1)
         self.create_subscription(msgs.String, "attempt", self.on_attempt, latched())
@@ -65,24 +78,51 @@ class RobotNode(Node):
             self.attempts, self.armed = self.armed, None
         else:
             self.attempts += 1
-        threading.Thread(target=self._pick, args=(msgs.pose_to_matrix(msg.pose),), daemon=True).start()
+        threading.Thread(target=self._pick, args=(msg.pose,), daemon=True).start()
 
-    def _pick(self, T_cam_obj: np.ndarray) -> None:
+    def _connect(self) -> None:
+        """Connect, or reconnect when the control program has ended (e.g. a protective stop was cleared)."""
+        if self.robot.receive is None:
+            self.robot.connect()
+        elif not self.params["dry_run"] and not self.robot.control.isProgramRunning():
+            self.robot.disconnect()
+            self.robot.connect()
+
+    def _home_tcp(self) -> np.ndarray:
+        """T_base_tcp [4, 4] at the home joints: the forward kinematics with the controller's TCP offset
+        (T_flange_tcp, read from where the arm is now), without moving there."""
+        T_flange_tcp = np.linalg.inv(fk(self.robot.joint_positions())) @ self.robot.tcp_pose()
+        return fk(self.params["home"], T_flange_tcp)
+
+    def _refuse(self, reason: str) -> None:
+        self.results.append("implausible")
+        self.status("failed", IMPLAUSIBLE_DETAIL + reason)
+        self.get_logger().warning(f"robot_node: {IMPLAUSIBLE_DETAIL}{reason}; nothing was sent to the robot")
+
+    def _pick(self, pose) -> None:
+        """One attempt for the estimate ``pose`` (a Pose message, camera frame), on its own thread."""
         p = self.params
         try:
-            if self.robot.receive is None:
-                self.robot.connect()
-            elif not self.params["dry_run"] and not self.robot.control.isProgramRunning():
-                self.robot.disconnect()  # the control program ended (e.g. a protective stop was cleared)
-                self.robot.connect()
             self.status("planning")
-            self.robot.move_j(self.params["home"])
+            try:
+                T_cam_obj = msgs.pose_to_matrix(pose)
+            except ValueError:  # scipy: a zero-norm (or not finite) quaternion
+                return self._refuse("the pose's quaternion is not a rotation")
+            reason = pose_problem(self.T_base_cam @ T_cam_obj, p["bbox_min"], p["bbox_size"], p["table_z"],
+                                  envelope=self.robot.config.envelope)
+            if reason is not None:
+                return self._refuse(reason)
+            self._connect()
             axis = p["symmetry_axis"] if len(p["symmetry_axis"]) == 3 else None
             plan = plan_grasp(T_cam_obj, self.T_base_cam, p["bbox_min"], p["bbox_size"], p["basket"][:2],
-                              p["basket"][2] + 0.006, self.robot.tcp_pose(), axis=axis,
+                              p["basket"][2] + 0.006, self._home_tcp(), axis=axis, table_z=p["table_z"],
                               envelope=self.robot.config.envelope)
+            reason = plan_problem(plan, p["table_z"])
+            if reason is not None:
+                return self._refuse(reason)
             self.last_plan = plan
             self.status("moving")
+            self.robot.move_j(p["home"])
             if p["execute"] == "pregrasp":
                 self.robot.move_l(plan.pre_grasp)
                 self.results.append("pregrasp")

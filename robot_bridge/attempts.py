@@ -3,10 +3,12 @@
 An attempt succeeds when the object lies in the basket at its end. Otherwise its cause is one of the
 ``FailureCause`` values: no detection (the attempt timed out and no pose arrived), robot timeout (a pose
 arrived, the robot started but did not finish in time), robot did not start (a pose arrived, the robot did
-not move in time), robot error (the robot node failed; the cause carries its detail), missed grasp (the
-gripper closed on nothing), dropped (held, but not in the basket). Pose error: ADD and ADD-S of the
-attempt's first pose estimate against the true pose (``pegasus_gen.geometry.pose_error``). The report
-(report.json): attempts, successes, success_rate, failure_causes (cause -> count), median_adds_m,
+not move in time), implausible estimate (the robot node refused the pose estimate before sending anything:
+``robot_bridge.plausibility``; its reason is in the robot node's status and log, not in the cause, so the
+report counts them together), robot error (the robot node failed otherwise; the cause carries its detail),
+missed grasp (the gripper closed on nothing), dropped (held, but not in the basket). Pose error: ADD and
+ADD-S of the attempt's first pose estimate against the true pose (``pegasus_gen.geometry.pose_error``). The
+report (report.json): attempts, successes, success_rate, failure_causes (cause -> count), median_adds_m,
 pose_source and records (``AttemptRecord``); strip.png: per attempt a 320 px wide picture (the estimate's
 overlay with the true box, the outcome), 5 a row.
 """
@@ -31,6 +33,7 @@ STRIP_COLUMNS = 5
 BLANK_IMAGE_SHAPE = (480, 640, 3)  # the picture when the attempt saw no image
 TRUTH_COLOUR, FAILURE_COLOUR = (40, 220, 40), (240, 60, 60)
 MISSED_GRASP_DETAIL = "nothing between the jaws"  # robot_node's detail when the gripper closed on nothing
+IMPLAUSIBLE_DETAIL = "implausible estimate: "  # how robot_node's detail starts when it refused the estimate
 
 
 class FailureCause(str, Enum):
@@ -39,6 +42,7 @@ class FailureCause(str, Enum):
     NO_DETECTION = "no detection"
     ROBOT_TIMEOUT = "robot timeout"
     ROBOT_DID_NOT_START = "robot did not start"
+    IMPLAUSIBLE = "implausible estimate"
     ROBOT_ERROR = "robot error"
     MISSED_GRASP = "missed grasp"
     DROPPED = "dropped"
@@ -100,6 +104,8 @@ def failure_cause(in_basket: bool, status: dict | None, estimated: bool, robot_s
         if not estimated:
             return FailureCause.NO_DETECTION.value
         return (FailureCause.ROBOT_TIMEOUT if robot_started else FailureCause.ROBOT_DID_NOT_START).value
+    if status["state"] == "failed" and status["detail"].startswith(IMPLAUSIBLE_DETAIL):
+        return FailureCause.IMPLAUSIBLE.value
     if status["state"] == "failed":
         return f"{FailureCause.ROBOT_ERROR.value}: {status['detail']}"
     if MISSED_GRASP_DETAIL in status["detail"]:

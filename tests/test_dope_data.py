@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dope_training.data import Augment, DopeDataset, Sample, load_bop
+from dope_training.data import Augment, DopeDataset, Sample, input_scale, load_bop
 from dope_training.targets import cell_centres, make_targets
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
@@ -100,3 +100,24 @@ def test_augmented_crops_carry_their_keypoints_and_plain_borders(tmp_path):
     assert tuple(image_t.shape) == (3, 160, 160) and tuple(beliefs.shape) == (9, 20, 20)
     assert float(image_t.max()) <= 1.0 and float(beliefs.max()) > 0.5
 
+
+
+def test_focal_length_policy_shows_objects_at_the_same_size_from_any_camera(tmp_path):
+    # Two cameras, fx 300 and 600 px, see the same 2 cm pair of dots at 0.5 m: 12 and 24 px apart in their
+    # images. With focal_px = 450 both crops show them 18 px apart; DOPE's policy (fit the shorter side)
+    # shows them at different sizes.
+    K = {300: np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]]),
+         600: np.array([[600.0, 0, 160], [0, 600.0, 120], [0, 0, 1]])}
+    spans = {}
+    for fx, camera in K.items():
+        gap = fx * 0.02 / 0.5
+        keypoints = np.array([[160.0 - gap / 2, 120.0]] * 4 + [[160.0 + gap / 2, 120.0]] * 5)
+        cv2.imwrite(str(tmp_path / f"{fx}.png"), np.zeros((240, 320, 3), np.uint8))
+        sample = Sample(tmp_path / f"{fx}.png", camera, [keypoints], [1], [1.0])
+        for focal in (450.0, 0.0):
+            assert input_scale((240, 320), camera, 160, focal) == pytest.approx(450 / fx if focal else 160 / 240)
+            _, moved, M = DopeDataset([sample], size=160, augment=Augment(enabled=False), focal_px=focal).item(0)
+            spans[fx, focal] = moved[0, 8, 0] - moved[0, 0, 0]
+            np.testing.assert_allclose(M[:, :2], np.eye(2) * input_scale((240, 320), camera, 160, focal))
+    assert spans[300, 450.0] == pytest.approx(18.0) and spans[600, 450.0] == pytest.approx(18.0)
+    assert spans[600, 0.0] == pytest.approx(2 * spans[300, 0.0])

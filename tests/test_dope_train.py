@@ -15,7 +15,7 @@ import pytest
 from dope_training.checkpoint import load_checkpoint
 from dope_training.evaluate import auc, evaluate, match_instances, pass_rates, write_report
 from dope_training.export import export_checkpoint
-from dope_training.infer import DopeModel, ObjectPose
+from dope_training.infer import DopeModel
 from dope_training.train import ShardSampler, TrainConfig, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
@@ -144,7 +144,7 @@ def test_auc_is_the_area_under_the_pass_rate_curve_and_misses_fail():
     truths[1][:3, 3] = [0.3, 0, 0]
     near, far = np.eye(4), np.eye(4)
     near[:3, 3], far[:3, 3] = [0.301, 0, 0], [2.0, 0, 0]
-    estimates = [ObjectPose(near, 0.9, np.zeros((9, 2)), 0.0), ObjectPose(far, 0.5, np.zeros((9, 2)), 0.0)]
+    estimates = [near, far]
     pairs, extra = match_instances(points, truths, estimates[:1])
     assert extra == 0 and pairs[0][1] is None and np.isinf(pairs[0][2]) and pairs[1][1] == 0
     assert pairs[1][2] == pytest.approx(0.001)

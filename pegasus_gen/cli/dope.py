@@ -49,8 +49,15 @@ def cmd_infer(args) -> int:
         raise PegasusError(f"{args.image}: cannot read the image")
     image = image[..., ::-1].copy()
     K = _read_K(args, image.shape[1], image.shape[0])
+    depth = None
+    if args.depth is not None:
+        values = cv2.imread(str(args.depth), cv2.IMREAD_UNCHANGED)
+        if values is None or values.shape != image.shape[:2]:
+            raise PegasusError(f"{args.depth}: not a single-channel depth image of the image's size "
+                               f"{image.shape[1]}x{image.shape[0]}")
+        depth = values.astype(np.float64) * args.depth_scale / 1000.0
     t0 = time.perf_counter()
-    poses = model.estimate(image, K, min_score=args.min_score)
+    poses = model.estimate(image, K, min_score=args.min_score, depth_m=depth)
     ms = 1000 * (time.perf_counter() - t0)
     obj = model.object
     png, path = write_poses(args.out, args.image, image, K, poses, model, ms)
@@ -58,6 +65,10 @@ def cmd_infer(args) -> int:
     for pose in poses:
         print(f"  score {pose.score:.2f}  t = {np.round(pose.T[:3, 3], 4).tolist()} m  "
               f"reprojection {pose.reprojection_error:.1f} px")
+        r = pose.refinement
+        if r is not None:
+            print(f"    depth-refined t = {np.round(r.T[:3, 3], 4).tolist()} m  fitness {r.fitness:.2f}  "
+                  f"rmse {r.rmse_m * 1000:.1f} mm  " + ("accepted" if r.accepted else f"rejected: {r.reason}"))
     print(f"overlay: {png}\nposes: {path}")
     return 0
 
@@ -68,7 +79,7 @@ def cmd_eval(args) -> int:
 
     model = DopeModel(args.model, device=args.device)
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
-                      min_score=args.min_score)
+                      min_score=args.min_score, refine=args.depth)
     out = args.out if args.out is not None else Path(args.model).parent / f"eval_{Path(args.data).name}_{args.split}"
     json_path, png = write_report(report, out)
     r = report["result"]
@@ -76,6 +87,11 @@ def cmd_eval(args) -> int:
           f"{report['misses']} missed, {report['false_positives']} false positives")
     print(f"{report['metric']}: AUC(0-10 cm) {r['auc_0_10cm']:.3f}, pass 2/5/10 cm "
           f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f}")
+    if "refined" in report:
+        r = report["refined"]["result"]
+        print(f"{report['metric']} with depth refinement: AUC(0-10 cm) {r['auc_0_10cm']:.3f}, pass 2/5/10 cm "
+              f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f} ({report['refined']['rejected']} "
+              "estimates rejected)")
     print(f"report: {json_path}    curve: {png}")
     return 0
 
@@ -85,8 +101,8 @@ def add_commands(sub) -> None:
 
     p = sub.add_parser("train", help="train DOPE for one object on BOP datasets (or DOPE/NDDS folders)")
     options.add_config_flags(p, TrainConfig, (
-        "data", "object", "out", "split", "variant", "epochs", "batch_size", "size", "lr", "min_visibility", "augment",
-        "device", "amp", "loader_workers", "seed", "vgg19", "object_size"),
+        "data", "object", "out", "split", "variant", "epochs", "batch_size", "size", "focal_px", "lr", "schedule",
+        "peak_weight", "min_visibility", "augment", "device", "amp", "loader_workers", "seed", "vgg19", "object_size"),
         data={"action": "append", "nargs": None, "help": "BOP dataset root or DOPE/NDDS folder (repeatable)"},
         object_size={"metavar": ("X", "Y", "Z")})
     p.add_argument("--resume", action="store_true", help="continue the training in --out (more --epochs)")
@@ -108,6 +124,8 @@ def add_commands(sub) -> None:
     p.add_argument("--image", required=True)
     p.add_argument("--K", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="camera intrinsics, px")
     p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees, when no --K")
+    p.add_argument("--depth", help="depth image aligned to --image (16-bit png): refine the poses against it")
+    p.add_argument("--depth-scale", type=float, default=1.0, help="mm per depth unit (BOP PBR datasets: 0.1)")
     p.add_argument("--out", default="out/infer")
     p.set_defaults(func=cmd_infer)
     p = sub.choices["eval"]
@@ -115,5 +133,6 @@ def add_commands(sub) -> None:
     p.add_argument("--split", default="train_pbr")
     p.add_argument("--min-visibility", type=float, default=0.1)
     p.add_argument("--max-images", type=int, help="per scene")
+    p.add_argument("--depth", action="store_true", help="also refine every estimate with the frame's depth image")
     p.add_argument("--out", help="report folder (default: beside the model)")
     p.set_defaults(func=cmd_eval)

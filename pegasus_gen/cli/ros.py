@@ -23,7 +23,7 @@ def cmd_sim_grasp(args) -> int:
 
     overrides = [f"pose_source:={'ground_truth' if args.ground_truth else 'dope'}", f"attempts:={args.attempts}",
                  f"objects:={args.objects}", f"host:={args.host}", f"time_scale:={args.time_scale}",
-                 f"report:={args.out}", f"seed:={args.seed}", f"device:={args.device}"]
+                 f"report:={args.out}", f"seed:={args.seed}", f"device:={args.device}", f"use_pose:={args.use_pose}"]
     if args.model:
         overrides.append(f"model:={args.model}")
     elif not args.ground_truth:
@@ -51,6 +51,8 @@ def add_commands(sub) -> None:
                        help="closed-loop grasp evaluation in the simulated cell (sim_pick_place.launch.py)")
     p.add_argument("--model", help="DOPE ONNX export")
     p.add_argument("--ground-truth", action="store_true", help="drive the robot with the true poses (grasping alone)")
+    p.add_argument("--use-pose", choices=("refined", "raw"), default="refined",
+                   help="the robot acts on DOPE's pose refined with the camera's depth, or on DOPE's pose as it is")
     p.add_argument("--attempts", type=int, default=20)
     p.add_argument("--objects", default="noodle_cup_red,noodle_cup_curry", help="asset names, comma-separated")
     p.add_argument("--out", default="out/sim_grasp", help="report folder")

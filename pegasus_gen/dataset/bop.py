@@ -10,6 +10,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import trimesh
 
@@ -186,13 +187,25 @@ class BopInstance:
 
 @dataclass
 class BopFrame:
-    """One image of a BOP split: scene folder, im_id, image path, K [3, 3] and the instances in it."""
+    """One image of a BOP split: scene folder, im_id, image path, K [3, 3], the instances in it, and its
+    depth image (None without one) with the depth_scale (png value * depth_scale = mm)."""
 
     scene: Path
     im_id: int
     image: Path
     K: np.ndarray
     instances: list[BopInstance]
+    depth: Path | None = None
+    depth_scale: float = 1.0
+
+    def read_depth(self) -> np.ndarray:
+        """The depth image [H, W] in metres (0 where there is none)."""
+        if self.depth is None:
+            raise PegasusError(f"{self.scene}: no depth image for im_id {self.im_id}")
+        values = cv2.imread(str(self.depth), cv2.IMREAD_UNCHANGED)
+        if values is None or values.ndim != 2:
+            raise PegasusError(f"{self.depth}: not a single-channel depth image")
+        return values.astype(np.float64) * self.depth_scale / 1000.0
 
 
 def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
@@ -215,5 +228,6 @@ def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
                 T[:3, 3] = np.array(entry["cam_t_m2c"], dtype=np.float64) / 1000.0
                 visib = infos[im_id][n]["visib_fract"] if im_id in infos else None
                 instances.append(BopInstance(int(entry["obj_id"]), T, n, visib))
+            depth = scene / "depth" / f"{int(im_id):06d}.png"
             yield BopFrame(scene, int(im_id), image, np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3),
-                           instances)
+                           instances, depth if depth.is_file() else None, float(cams[im_id].get("depth_scale", 1.0)))

@@ -1,0 +1,110 @@
+"""DOPE training recipes on a CPU, measured on a fixed held-out set: what ``docs/TRAINING.md`` reports.
+
+Usage: python benchmarks/training.py --work out/bench-training [--tag NAME] [--frames 960] [--camera-fx 554]
+       [--train key=value ...]
+
+Each run: the demo library; a training dataset of the demo's target object (noodle_cup_red, 1-2 per scene,
+0-1 of each distractor) on wooden_table and tiled_floor (``--frames`` frames at 320x240, camera fx
+``--camera-fx``; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
+left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's camera: 60 degree field of
+view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the TrainConfig fields given as ``--train
+key=value`` (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates. Prints one row and
+appends it to ``--work``/results.csv.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import platform
+import time
+from pathlib import Path
+
+import torch
+import yaml
+
+from dope_training.evaluate import evaluate, write_report
+from dope_training.infer import DopeModel
+from dope_training.train import read_losses, train
+from dope_training.train_config import TrainConfig
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
+
+TARGET = "noodle_cup_red"
+OBJECTS = (f"[{{asset: {TARGET}, count: [1, 2]}}, {{asset: snack_box, count: [0, 1]}}, "
+           "{asset: drink_can, count: [0, 1]}]")
+HELD_OUT = ["environments=[store_shelf]", "scenes=2", "frames_per_scene=15", "camera.width=640", "camera.height=480",
+            "camera.fov_deg=60", "trajectory.distance=[0.55, 0.8]", "trajectory.elevation_deg=[45, 65]", "seed=1000",
+            f"objects=[{{asset: {TARGET}, count: [1, 2]}}]"]
+
+
+def dataset(folder: Path, overrides: list[str]) -> Path:
+    """The dataset of ``overrides`` in ``folder``, generated unless a finished one is there."""
+    done = folder / "finished"
+    if not done.is_file():
+        generate(load_config(None, [f"output={folder}", "device=cpu", *overrides]), resume=folder.exists())
+        done.write_text("\n".join(overrides))
+    return folder
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", default="out/bench-training")
+    parser.add_argument("--tag", default="run")
+    parser.add_argument("--frames", type=int, default=960, help="training frames (12 per scene)")
+    parser.add_argument("--width", type=int, default=320)
+    parser.add_argument("--height", type=int, default=240)
+    parser.add_argument("--camera-fx", type=float, default=0.0, help="training camera fx, px (0: 60 degree fov)")
+    parser.add_argument("--distance", default="[0.45, 0.85]", help="training camera distance range, m")
+    parser.add_argument("--elevation", default="[30, 70]", help="training camera elevation range, degrees")
+    parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields as key=value")
+    args = parser.parse_args()
+    work = Path(args.work)
+    lib = AssetLibrary(None)
+    build_demo_library(lib)
+    camera = [f"camera.fx={args.camera_fx}", f"camera.fy={args.camera_fx}"] if args.camera_fx else []
+    train_overrides = [f"library={lib.root}", "environments=[wooden_table, tiled_floor]", f"objects={OBJECTS}",
+                       f"scenes={args.frames // 12}", "frames_per_scene=12", f"camera.width={args.width}",
+                       f"camera.height={args.height}", *camera, f"trajectory.distance={args.distance}",
+                       f"trajectory.elevation_deg={args.elevation}"]
+    name = f"train_{args.frames}_{args.width}x{args.height}_fx{args.camera_fx:g}_d{args.distance}_e{args.elevation}"
+    t0 = time.monotonic()
+    data = dataset(work / "datasets" / name.replace(" ", "").replace(",", "-"), train_overrides)
+    held_out = dataset(work / "datasets" / "held_out", [f"library={lib.root}", *HELD_OUT])
+    t_data = time.monotonic() - t0
+
+    fields = {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.train)}
+    out = work / "runs" / args.tag
+    cfg = TrainConfig(data=[str(data)], object=TARGET, out=str(out), device="cpu", **fields)
+    t0 = time.monotonic()
+    train(cfg)
+    t_train = time.monotonic() - t0
+    rows = read_losses(out / "loss.csv")
+    rate = sum(r["images"] for r in rows) / t_train
+    report = evaluate(DopeModel(out / "last.pt"), held_out, "train_pbr")
+    write_report(report, out / "eval_held_out")
+    r = report["result"]
+    row = {"tag": args.tag, "frames": args.frames, "camera_fx": args.camera_fx, "variant": cfg.variant,
+           "size": cfg.size, "focal_px": cfg.focal_px, "epochs": cfg.epochs, "batch": cfg.batch_size, "lr": cfg.lr,
+           "train": " ".join(args.train), "data_min": round(t_data / 60, 1), "train_min": round(t_train / 60, 1),
+           "images_per_s": round(rate, 1), "final_loss": round(rows[-1]["loss"], 5),
+           "instances": report["instances"], "misses": report["misses"], "false_positives": report["false_positives"],
+           "adds_auc": round(r["auc_0_10cm"], 3), "pass_2cm": round(r["pass_2cm"], 3),
+           "pass_5cm": round(r["pass_5cm"], 3),
+           "median_cm": None if r["median_m"] is None else round(100 * r["median_m"], 1)}
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}")
+    print(row)
+    results = work / "results.csv"
+    new = not results.is_file()
+    with open(results, "a", newline="") as f:
+        writer = csv.DictWriter(f, list(row))
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
+
+
+if __name__ == "__main__":
+    main()
