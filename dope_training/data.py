@@ -5,6 +5,14 @@ A sample is one image and its instances of the target objects: the 9 DOPE keypoi
 the model's bounding box in DOPE's order, then its centre) projected with the GT pose and K, in pixels.
 Instances seen less than ``min_visibility`` (BOP visib_fract) are dropped: their keypoints do not
 become targets.
+
+Objects whose shape is rotationally symmetric (``symmetry_axis``) get canonical labels: the image alone does
+not fix the angle about the axis, so keypoints of the GT rotation would sit at places the network cannot
+tell from the pixels, and it learns their average (corners pulled towards the centroid, PnP placing the
+object too far). Each instance's pose is therefore turned about the axis so that the model's reference
+direction (the one of x, y, z nearest to perpendicular to the axis, made perpendicular) points at the
+camera (``canonical_pose``); the pose is the same shape in the same place, so ADD-S and a grasp are
+unchanged, and the angle about the axis that inference returns is the camera-facing one.
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 from dope_training.targets import make_targets
 from pegasus_gen.dataset.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
@@ -49,9 +58,28 @@ def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> 
     return ids
 
 
-def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility: float = 0.1) -> list[Sample]:
+def canonical_pose(T_cam_obj: np.ndarray, axis) -> np.ndarray:
+    """T_cam_obj [4, 4] turned about ``axis`` [3] (object frame, through its origin) so that the reference
+    direction (see the module docstring) points at the camera; unchanged when the camera looks along the axis."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    reference = np.eye(3)[np.argmin(np.abs(a))]
+    reference = reference - (reference @ a) * a
+    reference /= np.linalg.norm(reference)
+    camera = -T_cam_obj[:3, :3].T @ T_cam_obj[:3, 3]  # the camera centre in the object frame
+    towards = camera - (camera @ a) * a
+    if np.linalg.norm(towards) < 1e-9:
+        return T_cam_obj.copy()
+    angle = np.arctan2(np.cross(reference, towards) @ a, reference @ towards)
+    S = np.eye(4)
+    S[:3, :3] = Rotation.from_rotvec(angle * a).as_matrix()
+    return T_cam_obj @ S
+
+
+def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility: float = 0.1,
+             symmetry_axis=None) -> list[Sample]:
     """Samples of every image of a BOP split holding at least one visible instance of ``objects``
-    (obj_ids or names)."""
+    (obj_ids or names); with ``symmetry_axis`` [3] (object frame), canonical labels (``canonical_pose``)."""
     root = Path(root)
     split_dir = root / split
     if not split_dir.is_dir():
@@ -65,7 +93,8 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
         for inst in frame.instances:
             visib = 1.0 if inst.visib_fract is None else inst.visib_fract
             if inst.obj_id in wanted and visib >= min_visibility:
-                sample.keypoints.append(project_points(cuboids[inst.obj_id], inst.T, frame.K))
+                T = inst.T if symmetry_axis is None else canonical_pose(inst.T, symmetry_axis)
+                sample.keypoints.append(project_points(cuboids[inst.obj_id], T, frame.K))
                 sample.obj_ids.append(inst.obj_id)
                 sample.visibility.append(visib)
         if sample.keypoints:

@@ -1,7 +1,8 @@
 """Pose accuracy of a trained DOPE network on a BOP split (``pegasus eval``): ADD and ADD-S.
 
 ADD and ADD-S: see ``pegasus_gen.geometry.pose_error``. The object's metric is ADD-S when models_info gives
-it symmetries, else ADD; both are reported. Every ground-truth instance of the object seen at visib_fract >=
+it symmetries or the network was trained as symmetric (``TargetObject.symmetric``), else ADD; both are
+reported. Every ground-truth instance of the object seen at visib_fract >=
 ``min_visibility`` counts: each is matched to the estimate of smallest ADD-S in its image (greedily, each
 estimate at most once); an instance with no estimate left is a miss (infinite error, failing every
 threshold); estimates left over are false positives. Pass rates at 2, 5 and 10 cm; AUC: the area under the
@@ -109,7 +110,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     if not np.allclose(size, obj.bbox_size, atol=1e-3):
         raise PegasusError(f"{root}: obj_id {obj.obj_id} is {np.round(size, 3).tolist()} m, the model's object "
                            f"{obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
-    symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous"))
+    symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous") or obj.symmetric)
     points = model_points(root, obj.obj_id)
     matches, refined_errors, false_positives, rejected, images_seen = [], [], 0, 0, 0
     frames = [f for f in bop_frames(root / split, max_images)

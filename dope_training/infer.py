@@ -7,7 +7,8 @@ multiple of 8, run; belief peaks are grouped into instances by the affinities (`
 the keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as
 cv2.resize samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt) with the camera K gives the
 pose. Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are
-solved, see ``pnp``. With a depth image, each pose is then refined against it (``refine.refine_pose``).
+solved, see ``pnp``. With a depth image, each pose is then refined against it (``refine.refine_pose``),
+starting from the pose moved onto the ray through the detected centroid (``on_centroid_ray``).
 """
 
 from __future__ import annotations
@@ -57,6 +58,18 @@ class ObjectPose:
             out["refined"] = {"accepted": r.accepted, "R": r.T[:3, :3].tolist(), "t_m": r.T[:3, 3].tolist(),
                               "fitness": r.fitness, "rmse_m": r.rmse_m, "reason": r.reason}
         return out
+
+
+def on_centroid_ray(T_cam_obj: np.ndarray, centre_obj: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
+                    dist: np.ndarray | None = None) -> np.ndarray:
+    """T_cam_obj [4, 4] moved so that the object's centre ``centre_obj`` [3] (m, object frame) lies on the ray
+    through the detected centroid ``centroid_px`` [2] (image px) at the same z: DOPE's centroid is its
+    surest keypoint, while PnP lets wrong corners drag the centre off it. The start of depth refinement."""
+    ray = cv2.undistortPoints(np.asarray(centroid_px, np.float64).reshape(1, 1, 2), K, dist).reshape(2)
+    centre = T_cam_obj[:3, :3] @ centre_obj + T_cam_obj[:3, 3]
+    out = T_cam_obj.copy()
+    out[:3, 3] += np.r_[ray * centre[2], centre[2]] - centre
+    return out
 
 
 class DopeModel:
@@ -140,7 +153,8 @@ class DopeModel:
                 continue
             pose = ObjectPose(solved[0], det.score, keypoints, solved[1])
             if depth_m is not None:
-                pose.refinement = refine_pose(pose.T, depth_m, K, np.asarray(self.object.surface_points),
+                start = on_centroid_ray(pose.T, self.cuboid[8], keypoints[8], K, dist)
+                pose.refinement = refine_pose(start, depth_m, K, np.asarray(self.object.surface_points),
                                               np.asarray(self.object.surface_normals), self.object.symmetry_axis)
             poses.append(pose)
         return poses

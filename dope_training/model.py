@@ -5,8 +5,10 @@ ImageNet weights load, then 512->256->128 3x3 convs; six stages, each with a bel
 an affinity branch (16 maps); stage 1 from the features (three 3x3 convs, 1x1 to 512, 1x1 out), stages
 2-6 from concat(beliefs, affinities, features) = 153 channels (five 7x7 convs, 1x1, 1x1 out).
 ``light``: the same structure at a quarter of the trunk width, 64-channel stages with 3x3 instead of
-7x7 kernels and 3 stages; about 60x fewer multiply-adds, so a few hundred steps train on a laptop CPU
-in minutes. Normalisation (ImageNet mean/std) happens inside the network: its input is RGB in 0..1.
+7x7 kernels, 3 stages and BatchNorm after every hidden convolution (it trains from scratch: without
+normalisation the deep plain stack sits at all-zero or blurred beliefs for thousands of steps); about 60x
+fewer multiply-adds, so it trains on a laptop CPU in minutes. Normalisation (ImageNet mean/std) happens
+inside the network: its input is RGB in 0..1.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ class ModelConfig:
     width_divisor: int = 1  # trunk channels = VGG's / this
     stage_channels: int = 128
     late_kernel: int = 7  # kernel of stages 2..n
+    batch_norm: bool = False  # BatchNorm after every hidden conv (trains from scratch; the full trunk has none)
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
 
@@ -39,23 +42,29 @@ class ModelConfig:
         if variant == "full":
             return ModelConfig()
         if variant == "light":
-            return ModelConfig(variant="light", stages=3, width_divisor=4, stage_channels=64, late_kernel=3)
+            return ModelConfig(variant="light", stages=3, width_divisor=4, stage_channels=64, late_kernel=3,
+                               batch_norm=True)
         raise ValueError(f"unknown DOPE variant {variant!r} (full or light)")
 
 
-def _conv(cin: int, cout: int, k: int, relu: bool = True) -> list[nn.Module]:
-    return [nn.Conv2d(cin, cout, k, padding=k // 2), *([nn.ReLU(inplace=True)] if relu else [])]
+def _conv(cin: int, cout: int, k: int, relu: bool = True, bn: bool = False) -> list[nn.Module]:
+    """A k x k convolution (same padding), then BatchNorm (``bn``) and ReLU (``relu``; both only on hidden
+    layers)."""
+    layers = [nn.Conv2d(cin, cout, k, padding=k // 2, bias=not bn)]
+    return layers + ([nn.BatchNorm2d(cout)] if bn else []) + ([nn.ReLU(inplace=True)] if relu else [])
 
 
-def _branch(cin: int, cout: int, channels: int, first: bool, late_kernel: int) -> nn.Sequential:
+def _branch(cin: int, cout: int, channels: int, first: bool, late_kernel: int, bn: bool) -> nn.Sequential:
     if first:
-        layers = _conv(cin, channels, 3) + _conv(channels, channels, 3) + _conv(channels, channels, 3)
-        layers += _conv(channels, 4 * channels, 1) + _conv(4 * channels, cout, 1, relu=False)
+        layers = _conv(cin, channels, 3, bn=bn)
+        for _ in range(2):
+            layers += _conv(channels, channels, 3, bn=bn)
+        layers += _conv(channels, 4 * channels, 1, bn=bn) + _conv(4 * channels, cout, 1, relu=False)
     else:
-        layers = _conv(cin, channels, late_kernel)
+        layers = _conv(cin, channels, late_kernel, bn=bn)
         for _ in range(4):
-            layers += _conv(channels, channels, late_kernel)
-        layers += _conv(channels, channels, 1) + _conv(channels, cout, 1, relu=False)
+            layers += _conv(channels, channels, late_kernel, bn=bn)
+        layers += _conv(channels, channels, 1, bn=bn) + _conv(channels, cout, 1, relu=False)
     return nn.Sequential(*layers)
 
 
@@ -72,15 +81,15 @@ class DopeNetwork(nn.Module):
             if v == "M":
                 layers.append(nn.MaxPool2d(2, 2))
             else:
-                layers += _conv(cin, v // c.width_divisor, 3)
+                layers += _conv(cin, v // c.width_divisor, 3, bn=c.batch_norm)
                 cin = v // c.width_divisor
-        self.features = nn.Sequential(*layers)  # indices as torchvision's vgg19().features[:23]
-        self.reduce = nn.Sequential(*_conv(cin, 256 // c.width_divisor, 3),
-                                    *_conv(256 // c.width_divisor, 128 // c.width_divisor, 3))
+        self.features = nn.Sequential(*layers)  # without BatchNorm: indices as torchvision's vgg19().features[:23]
+        self.reduce = nn.Sequential(*_conv(cin, 256 // c.width_divisor, 3, bn=c.batch_norm),
+                                    *_conv(256 // c.width_divisor, 128 // c.width_divisor, 3, bn=c.batch_norm))
         feat = 128 // c.width_divisor
         self.beliefs, self.affinities = (
-            nn.ModuleList([_branch(feat if s == 0 else feat + 25, out, c.stage_channels, s == 0, c.late_kernel)
-                           for s in range(c.stages)]) for out in (9, 16))
+            nn.ModuleList([_branch(feat if s == 0 else feat + 25, out, c.stage_channels, s == 0, c.late_kernel,
+                                   c.batch_norm) for s in range(c.stages)]) for out in (9, 16))
         self.register_buffer("mean", torch.tensor(c.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(c.std).view(1, 3, 1, 1), persistent=False)
 

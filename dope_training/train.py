@@ -74,12 +74,12 @@ def load_training_samples(cfg: TrainConfig):
             obj_id = resolve_objects([cfg.object], boxes, names, str(root))[0]
             info = read_json(root / "models" / "models_info.json")[str(obj_id)]
             name = next((n for n, i in names.items() if i == obj_id), str(obj_id))
-            symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous"))
+            axis = cfg.symmetry_axis or next((s["axis"] for s in info.get("symmetries_continuous", [])), None)
+            symmetric = bool(info.get("symmetries_discrete")) or axis is not None
             points, normals = surface_samples(root, obj_id)
-            axis = next((s["axis"] for s in info.get("symmetries_continuous", [])), None)
             found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric,
-                                 points.tolist(), normals.tolist(), axis)
-            samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility)
+                                 points.tolist(), normals.tolist(), None if axis is None else list(axis))
+            samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility, axis)
         elif root.is_dir():
             if cfg.object_size is None:
                 raise PegasusError(f"{root}: a DOPE/NDDS folder needs --object-size X Y Z (metres) for the cuboid")

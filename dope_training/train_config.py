@@ -31,6 +31,9 @@ class TrainConfig(BaseModel):
         "constant", description="learning rate over the run: constant (DOPE), or cosine decay to 1/100 of lr")
     peak_weight: float = Field(0.0, ge=0.0, description="belief cells' squared error weighted by 1 + this * target "
                                                         "(DOPE: 0)")
+    symmetry_axis: Optional[tuple[float, float, float]] = Field(
+        None, description="axis (object frame) about which the object's shape is rotationally symmetric: canonical "
+                          "labels about it (default: the dataset's symmetries_continuous, if any)")
     min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
                                             "nominal-scale crops around the instances only)")

@@ -32,6 +32,8 @@ def generate_launch_description():
         DeclareLaunchArgument("size", default_value="0", description="training crop, px (0: the variant's)"),
         DeclareLaunchArgument("focal_px", default_value="0",
                               description="network-input focal length, px (0: the crop fits the image)"),
+        DeclareLaunchArgument("symmetry_axis", default_value="",
+                              description="x y z: the object's shape is rotationally symmetric about it (labels)"),
         DeclareLaunchArgument("variant", default_value="light", choices=["light", "full"]),
         DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
         DeclareLaunchArgument("images", default_value="out/loop/dataset/train_pbr/000000/rgb",
@@ -43,7 +45,8 @@ def generate_launch_description():
             "library": arg("library"), "environments": arg("environments"), "objects": arg("objects_config")}]),
         Node(package="pegasus", executable="trainer_node", parameters=[{
             "object": arg("object"), "out": arg("run"), "variant": arg("variant"), "epochs": arg("epochs"),
-            "size": arg("size"), "focal_px": arg("focal_px"), "device": arg("device")}]),
+            "size": arg("size"), "focal_px": arg("focal_px"), "symmetry_axis": arg("symmetry_axis"),
+            "device": arg("device")}]),
         Node(package="pegasus", executable="camera_node", parameters=[{"folder": arg("images"), "rate": 1.0,
                                                                         "wait_for_folder": True}]),
         Node(package="pegasus", executable="inference_node", parameters=[{"device": "cpu",

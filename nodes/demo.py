@@ -44,6 +44,7 @@ class DemoSettings(BaseModel):
     variant: Literal["full", "light"] = Field(description="DOPE network variant")
     size: int = Field(gt=0, description="training crop size, px")
     focal_px: float = Field(CELL_CAMERA_FX, ge=0, description="network-input focal length, px")
+    symmetry_axis: str = Field("0 0 1", description="the trained object's shape symmetry axis (labels; empty: none)")
     epochs: int = Field(gt=0, description="training epochs")
     attempts: int = Field(gt=0, description="grasp attempts in the simulated cell")
     objects: str = Field(description="assets grasped (comma-separated); the first is the trained object")
@@ -121,7 +122,8 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     nodes = run_launch("generate_train_deploy.launch.py", [
         f"config:={config}", f"object:={target}", f"output:={dataset}", f"run:={train_run}", f"scenes:={s.scenes}",
         f"frames:={s.frames}", f"width:={s.width}", f"height:={s.height}", f"epochs:={s.epochs}",
-        f"variant:={s.variant}", f"size:={s.size}", f"focal_px:={s.focal_px}", f"device:={s.device}",
+        f"variant:={s.variant}", f"size:={s.size}", f"focal_px:={s.focal_px}",
+        f"symmetry_axis:={s.symmetry_axis}", f"device:={s.device}",
         f"images:={dataset / 'train_pbr' / '000000' / 'rgb'}", f"max_images:={s.infer_images}",
         f"library:={lib.root}"])
     times.update(stage_times(t0, dataset, train_run, time.time()))

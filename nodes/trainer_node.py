@@ -2,7 +2,8 @@
 and publishes the model's path on ``model`` (String, transient-local).
 
 Parameters: ``data`` (empty: wait for ``dataset``), ``object``, ``out``, ``variant``, ``epochs``,
-``batch_size``, ``size``, ``focal_px``, ``device``. Publishes ``trainer/progress`` (String JSON: step, epoch, loss,
+``batch_size``, ``size``, ``focal_px``, ``symmetry_axis`` ("x y z" in the object frame, empty: none),
+``device``. Publishes ``trainer/progress`` (String JSON: step, epoch, loss,
 state) once a second from the run's loss.csv.
 """
 
@@ -22,7 +23,8 @@ class TrainerNode(Node):
         super().__init__("trainer_node", **kwargs)
         p = {name: self.declare_parameter(name, default).value for name, default in (
             ("data", ""), ("object", ""), ("out", "runs/dope"), ("variant", "light"), ("epochs", 10),
-            ("batch_size", 8), ("size", 0), ("focal_px", 0.0), ("device", "auto"), ("loader_workers", 2))}
+            ("batch_size", 8), ("size", 0), ("focal_px", 0.0), ("symmetry_axis", ""),
+            ("device", "auto"), ("loader_workers", 2))}
         self.params = p
         self.job = None
         self.progress_pub = self.create_publisher(msgs.String, "trainer/progress", 10)
@@ -40,7 +42,7 @@ class TrainerNode(Node):
         def work():  # the config is built (and checked) in the job: a bad parameter fails it, visibly
             run = train(TrainConfig(data=[data], object=str(p["object"]), out=p["out"], variant=p["variant"],
                                     epochs=p["epochs"], batch_size=p["batch_size"], size=p["size"],
-                                    focal_px=p["focal_px"],
+                                    focal_px=p["focal_px"], symmetry_axis=p["symmetry_axis"].split() or None,
                                     device=p["device"], loader_workers=p["loader_workers"]))
             return export_checkpoint(run / "last.pt", run / "model.onnx")[0]
 

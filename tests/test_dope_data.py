@@ -6,8 +6,9 @@ import json
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from dope_training.data import Augment, DopeDataset, Sample, input_scale, load_bop
+from dope_training.data import Augment, DopeDataset, Sample, canonical_pose, input_scale, load_bop
 from dope_training.targets import cell_centres, make_targets
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
@@ -121,3 +122,24 @@ def test_focal_length_policy_shows_objects_at_the_same_size_from_any_camera(tmp_
             np.testing.assert_allclose(M[:, :2], np.eye(2) * input_scale((240, 320), camera, 160, focal))
     assert spans[300, 450.0] == pytest.approx(18.0) and spans[600, 450.0] == pytest.approx(18.0)
     assert spans[600, 0.0] == pytest.approx(2 * spans[300, 0.0])
+
+
+def test_canonical_labels_of_a_symmetric_object_depend_only_on_what_the_camera_sees():
+    rng = np.random.default_rng(4)
+    for axis in ([0, 0, 1], [0, 1, 0], [1, 1, 0]):
+        a = np.array(axis, float) / np.linalg.norm(axis)
+        for _ in range(20):
+            T = np.eye(4)
+            T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+            T[:3, 3] = rng.uniform([-0.2, -0.2, 0.4], [0.2, 0.2, 0.9])
+            canonical = canonical_pose(T, axis)
+            turn = np.linalg.inv(T) @ canonical  # a rotation about the axis through the origin, nothing else
+            assert np.allclose(turn[:3, 3], 0) and np.allclose(turn[:3, :3] @ a, a)
+            for angle in rng.uniform(-np.pi, np.pi, 3):  # the same shape turned about its axis: same labels
+                S = np.eye(4)
+                S[:3, :3] = Rotation.from_rotvec(angle * a).as_matrix()
+                np.testing.assert_allclose(canonical_pose(T @ S, axis), canonical, atol=1e-9)
+            camera = -canonical[:3, :3].T @ canonical[:3, 3]  # in the canonical object frame
+            towards = camera - (camera @ a) * a
+            reference = np.eye(3)[np.argmin(np.abs(a))] - a[np.argmin(np.abs(a))] * a
+            assert towards @ reference / np.linalg.norm(towards) / np.linalg.norm(reference) > 1 - 1e-9

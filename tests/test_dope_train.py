@@ -11,11 +11,12 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from dope_training.checkpoint import load_checkpoint
 from dope_training.evaluate import auc, evaluate, match_instances, pass_rates, write_report
 from dope_training.export import export_checkpoint
-from dope_training.infer import DopeModel
+from dope_training.infer import DopeModel, on_centroid_ray
 from dope_training.train import ShardSampler, TrainConfig, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
@@ -161,3 +162,21 @@ def test_cli_errors_are_clear(dope_dataset, tmp_path, capsys):
     assert main(["export", str(tmp_path / "broken.pt")]) == 2
     assert "not a readable checkpoint" in capsys.readouterr().err
     assert not (tmp_path / "broken.onnx").exists()
+
+
+def test_refinement_starts_on_the_detected_centroids_ray():
+    rng = np.random.default_rng(5)
+    K = np.array([[554.0, 0, 320], [0, 554.0, 240], [0, 0, 1]])
+    dist = np.array([0.05, -0.02, 0.001, 0.0, 0.0])
+    for _ in range(20):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        T[:3, 3] = rng.uniform([-0.2, -0.2, 0.4], [0.2, 0.2, 0.9])
+        centre = rng.uniform(-0.05, 0.05, 3)
+        centroid_px = rng.uniform([100, 100], [540, 380])
+        moved = on_centroid_ray(T, centre, centroid_px, K, dist)
+        np.testing.assert_allclose(moved[:3, :3], T[:3, :3])
+        c = moved[:3, :3] @ centre + moved[:3, 3]
+        assert c[2] == pytest.approx((T[:3, :3] @ centre + T[:3, 3])[2])
+        projected = cv2.projectPoints(c[None], np.zeros(3), np.zeros(3), K, dist)[0].reshape(2)
+        np.testing.assert_allclose(projected, centroid_px, atol=1e-3)
