@@ -8,8 +8,8 @@ Each run: the demo library; a training dataset of the demo's target object (nood
 ``--camera-fx``; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
 left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's camera: 60 degree field of
 view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the TrainConfig fields given as ``--train
-key=value`` (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates. Prints one row and
-appends it to ``--work``/results.csv.
+key=value`` (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates of DOPE alone and with
+depth refinement. Prints one row and appends it to ``--work``/results.csv.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from dope_training.evaluate import evaluate, write_report
 from dope_training.infer import DopeModel
 from dope_training.train import read_losses, train
 from dope_training.train_config import TrainConfig
+from nodes.demo import held_out_overrides
 from pegasus_gen.assets.demo import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config
@@ -36,9 +37,7 @@ from pegasus_gen.dataset.generate import generate
 TARGET = "noodle_cup_red"
 OBJECTS = (f"[{{asset: {TARGET}, count: [1, 2]}}, {{asset: snack_box, count: [0, 1]}}, "
            "{asset: drink_can, count: [0, 1]}]")
-HELD_OUT = ["environments=[store_shelf]", "scenes=2", "frames_per_scene=15", "camera.width=640", "camera.height=480",
-            "camera.fov_deg=60", "trajectory.distance=[0.55, 0.8]", "trajectory.elevation_deg=[45, 65]", "seed=1000",
-            f"objects=[{{asset: {TARGET}, count: [1, 2]}}]"]
+
 
 
 def dataset(folder: Path, overrides: list[str]) -> Path:
@@ -73,7 +72,7 @@ def main() -> None:
     name = f"train_{args.frames}_{args.width}x{args.height}_fx{args.camera_fx:g}_d{args.distance}_e{args.elevation}"
     t0 = time.monotonic()
     data = dataset(work / "datasets" / name.replace(" ", "").replace(",", "-"), train_overrides)
-    held_out = dataset(work / "datasets" / "held_out", [f"library={lib.root}", *HELD_OUT])
+    held_out = dataset(work / "datasets" / "held_out", held_out_overrides(lib.root, TARGET, frames=15))
     t_data = time.monotonic() - t0
 
     fields = {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.train)}
@@ -84,17 +83,17 @@ def main() -> None:
     t_train = time.monotonic() - t0
     rows = read_losses(out / "loss.csv")
     rate = sum(r["images"] for r in rows) / t_train
-    report = evaluate(DopeModel(out / "last.pt"), held_out, "train_pbr")
+    report = evaluate(DopeModel(out / "last.pt"), held_out, "train_pbr", refine=True)
     write_report(report, out / "eval_held_out")
-    r = report["result"]
-    row = {"tag": args.tag, "frames": args.frames, "camera_fx": args.camera_fx, "variant": cfg.variant,
-           "size": cfg.size, "focal_px": cfg.focal_px, "epochs": cfg.epochs, "batch": cfg.batch_size, "lr": cfg.lr,
-           "train": " ".join(args.train), "data_min": round(t_data / 60, 1), "train_min": round(t_train / 60, 1),
-           "images_per_s": round(rate, 1), "final_loss": round(rows[-1]["loss"], 5),
+    dope, refined = report["ADD-S"], report["refined"]["ADD-S"]
+    row = {"tag": args.tag, "frames": args.frames, "camera_fx": args.camera_fx, "train": " ".join(args.train),
+           "train_min": round(t_train / 60, 1), "images_per_s": round(rate, 1),
+           "final_loss": round(rows[-1]["loss"], 5),
            "instances": report["instances"], "misses": report["misses"], "false_positives": report["false_positives"],
-           "adds_auc": round(r["auc_0_10cm"], 3), "pass_2cm": round(r["pass_2cm"], 3),
-           "pass_5cm": round(r["pass_5cm"], 3),
-           "median_cm": None if r["median_m"] is None else round(100 * r["median_m"], 1)}
+           "adds_auc": round(dope["auc_0_10cm"], 3), "pass_2cm": round(dope["pass_2cm"], 3),
+           "pass_5cm": round(dope["pass_5cm"], 3), "refined_adds_auc": round(refined["auc_0_10cm"], 3),
+           "refined_pass_2cm": round(refined["pass_2cm"], 3), "refined_pass_5cm": round(refined["pass_5cm"], 3),
+           "rejected": report["refined"]["rejected"], "data_min": round(t_data / 60, 1)}
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}")
     print(row)
     results = work / "results.csv"

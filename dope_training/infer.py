@@ -60,15 +60,26 @@ class ObjectPose:
         return out
 
 
-def on_centroid_ray(T_cam_obj: np.ndarray, centre_obj: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
-                    dist: np.ndarray | None = None) -> np.ndarray:
-    """T_cam_obj [4, 4] moved so that the object's centre ``centre_obj`` [3] (m, object frame) lies on the ray
-    through the detected centroid ``centroid_px`` [2] (image px) at the same z: DOPE's centroid is its
-    surest keypoint, while PnP lets wrong corners drag the centre off it. The start of depth refinement."""
+def on_centroid_ray(T_cam_obj: np.ndarray, cuboid: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
+                    dist: np.ndarray | None = None, depth_m: np.ndarray | None = None) -> np.ndarray:
+    """T_cam_obj [4, 4] moved so that the object's centre (``cuboid`` [9, 3]: its box corners and centre, m,
+    object frame) lies on the ray through the detected centroid ``centroid_px`` [2] (image px): DOPE's
+    centroid is its surest keypoint, while PnP lets wrong corners drag the centre off it, and its distance
+    with it. The centre keeps its z, or with ``depth_m`` [H, W] (m, 0 = none) takes the median depth of the
+    9x9 px around the centroid plus half the box's depth along the optical axis at the PnP rotation (the
+    surface seen there is the object's front). The start of depth refinement."""
     ray = cv2.undistortPoints(np.asarray(centroid_px, np.float64).reshape(1, 1, 2), K, dist).reshape(2)
-    centre = T_cam_obj[:3, :3] @ centre_obj + T_cam_obj[:3, 3]
+    centre = T_cam_obj[:3, :3] @ cuboid[8] + T_cam_obj[:3, 3]
+    z = centre[2]
+    if depth_m is not None:
+        u, v = np.round(np.asarray(centroid_px)).astype(int)
+        window = depth_m[max(v - 4, 0):max(v + 5, 0), max(u - 4, 0):max(u + 5, 0)]
+        window = window[np.isfinite(window) & (window > 0)]
+        if window.size:
+            offsets = (cuboid[:8] - cuboid[8]) @ T_cam_obj[2, :3]
+            z = float(np.median(window)) + float(np.ptp(offsets)) / 2
     out = T_cam_obj.copy()
-    out[:3, 3] += np.r_[ray * centre[2], centre[2]] - centre
+    out[:3, 3] += np.r_[ray * z, z] - centre
     return out
 
 
@@ -153,7 +164,7 @@ class DopeModel:
                 continue
             pose = ObjectPose(solved[0], det.score, keypoints, solved[1])
             if depth_m is not None:
-                start = on_centroid_ray(pose.T, self.cuboid[8], keypoints[8], K, dist)
+                start = on_centroid_ray(pose.T, self.cuboid, keypoints[8], K, dist, depth_m)
                 pose.refinement = refine_pose(start, depth_m, K, np.asarray(self.object.surface_points),
                                               np.asarray(self.object.surface_normals), self.object.symmetry_axis)
             poses.append(pose)

@@ -43,8 +43,12 @@ class DemoSettings(BaseModel):
     elevation_deg: tuple[float, float] = Field((30.0, 70.0), description="training camera elevation range")
     variant: Literal["full", "light"] = Field(description="DOPE network variant")
     size: int = Field(gt=0, description="training crop size, px")
-    focal_px: float = Field(CELL_CAMERA_FX, ge=0, description="network-input focal length, px")
-    symmetry_axis: str = Field("0 0 1", description="the trained object's shape symmetry axis (labels; empty: none)")
+    focal_px: float = Field(330.0, ge=0, description="network-input focal length, px")
+    lr: float = Field(0.002, gt=0, description="Adam learning rate")
+    schedule: Literal["constant", "cosine"] = Field("cosine", description="learning rate schedule")
+    peak_weight: float = Field(10.0, ge=0, description="belief cells' error weight 1 + this * target")
+    symmetry_axis: tuple[float, float, float] | None = Field(
+        (0.0, 0.0, 1.0), description="the trained object's shape symmetry axis (canonical labels; None: none)")
     epochs: int = Field(gt=0, description="training epochs")
     attempts: int = Field(gt=0, description="grasp attempts in the simulated cell")
     objects: str = Field(description="assets grasped (comma-separated); the first is the trained object")
@@ -61,7 +65,7 @@ class DemoSettings(BaseModel):
     @classmethod
     def small(cls) -> "DemoSettings":
         """Fits a 2-core CPU in about 20 minutes."""
-        return cls(scenes=80, frames=12, width=320, height=240, variant="light", size=160, epochs=12, attempts=10,
+        return cls(scenes=80, frames=12, width=320, height=240, variant="light", size=128, epochs=16, attempts=10,
                    objects="noodle_cup_red", device="cpu", time_scale=3.0)
 
     @classmethod
@@ -69,6 +73,12 @@ class DemoSettings(BaseModel):
         """The GPU-scale run: 5,000 frames at 640x480, the full DOPE network, 20 grasp attempts."""
         return cls(scenes=200, frames=25, width=640, height=480, variant="full", size=400, epochs=30, attempts=20,
                    objects="noodle_cup_red", device="auto", time_scale=2.0)
+
+    def train_options(self) -> str:
+        """The recipe's TrainConfig fields beyond the launch file's own arguments, as trainer_node's options."""
+        axis = "null" if self.symmetry_axis is None else "[" + ",".join(f"{v:g}" for v in self.symmetry_axis) + "]"
+        return (f"focal_px={self.focal_px:g} lr={self.lr:g} schedule={self.schedule} "
+                f"peak_weight={self.peak_weight:g} symmetry_axis={axis}")
 
     def dataset_config(self, library: str | Path) -> dict:
         """The training dataset's generation config (``pegasus generate`` YAML keys)."""
@@ -100,12 +110,14 @@ def stage_times(t0: float, dataset: Path, train_run: Path, t_end: float) -> dict
     return {name: max(b - a, 0.0) for name, a, b in zip(names, marks, marks[1:])}
 
 
-def run_demo(out: str | Path, full: bool = False, library: str | None = None, host: str = "127.0.0.1") -> Path:
-    """Run every step into ``out`` (refused when it is not empty) and return the report's path."""
+def run_demo(out: str | Path, settings: DemoSettings | None = None, library: str | None = None,
+             host: str = "127.0.0.1") -> Path:
+    """Run every step with ``settings`` (default: ``DemoSettings.small()``) into ``out`` (refused when it is
+    not empty) and return the report's path; ``out``/summary.json holds its figures."""
     from pegasus_gen.assets.demo import build_demo_library
     from pegasus_gen.assets.library import AssetLibrary
 
-    s = DemoSettings.full() if full else DemoSettings.small()
+    s = settings or DemoSettings.small()
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise PegasusError(f"{out} is not empty: choose another --out or remove it")
@@ -122,8 +134,8 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     nodes = run_launch("generate_train_deploy.launch.py", [
         f"config:={config}", f"object:={target}", f"output:={dataset}", f"run:={train_run}", f"scenes:={s.scenes}",
         f"frames:={s.frames}", f"width:={s.width}", f"height:={s.height}", f"epochs:={s.epochs}",
-        f"variant:={s.variant}", f"size:={s.size}", f"focal_px:={s.focal_px}",
-        f"symmetry_axis:={s.symmetry_axis}", f"device:={s.device}",
+        f"variant:={s.variant}", f"size:={s.size}", f"train_options:={s.train_options()}",
+        f"device:={s.device}",
         f"images:={dataset / 'train_pbr' / '000000' / 'rgb'}", f"max_images:={s.infer_images}",
         f"library:={lib.root}"])
     times.update(stage_times(t0, dataset, train_run, time.time()))
@@ -151,8 +163,8 @@ def run_demo(out: str | Path, full: bool = False, library: str | None = None, ho
     times["closed-loop grasping (simulated cell)"] = time.monotonic() - t0
     grasp = json.loads((out / "sim_grasp" / "report.json").read_text())
     summary = {"settings": s.model_dump(mode="json"), "stage_seconds": times,
-               "held_out": {"instances": report["instances"], "metric": report["metric"],
-                            "dope": report["result"], "dope_depth": report["refined"]["result"],
+               "held_out": {"instances": report["instances"], "metric": "ADD-S",
+                            "dope": report["ADD-S"], "dope_depth": report["refined"]["ADD-S"],
                             "rejected_by_refinement": report["refined"]["rejected"]},
                "grasps": {k: grasp[k] for k in ("attempts", "successes", "failure_causes", "median_adds_m")}}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
@@ -179,7 +191,7 @@ def write_html(out: Path, s: DemoSettings, evaluation: dict, grasp: dict, times:
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.0f} s</td></tr>" for k, v in times.items())
     rows += f"<tr><td><b>total</b></td><td><b>{sum(times.values()) / 60:.1f} min</b></td></tr>"
     accuracy = "".join(_accuracy_row(name, r) for name, r in (
-        ("DOPE", evaluation["result"]), ("DOPE + depth refinement", evaluation["refined"]["result"])))
+        ("DOPE", evaluation["ADD-S"]), ("DOPE + depth refinement", evaluation["refined"]["ADD-S"])))
     causes = ", ".join(f"{k}: {v}" for k, v in grasp["failure_causes"].items()) or "none"
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>PEGASUS demo</title>
 <style>body{{font-family:sans-serif;max-width:1000px;margin:auto}} img{{max-width:100%}} td{{padding:2px 10px}}</style>
@@ -193,7 +205,7 @@ DOPE-{s.variant} on {s.size} px crops at {s.focal_px:g} px focal length, {s.epoc
 <p>{evaluation['object']['name']} in {html.escape(s.held_out_environment)}, seen with the cell camera:
 {evaluation['instances']} instances, {evaluation['misses']} missed by DOPE, {evaluation['refined']['rejected']}
 estimates rejected by the depth refinement (a rejected estimate counts as a miss).</p>
-<table><tr><th></th><th>{evaluation['metric']} AUC (0-10 cm)</th><th>pass 2 cm</th><th>pass 5 cm</th>
+<table><tr><th></th><th>ADD-S AUC (0-10 cm)</th><th>pass 2 cm</th><th>pass 5 cm</th>
 <th>pass 10 cm</th><th>median (cm)</th></tr>{accuracy}</table><img src="figures/eval_curve.png">
 <h2>Closed-loop grasping in the simulated cell</h2>
 <p>{grasp['successes']} of {grasp['attempts']} objects in the basket ({grasp['pose_source']} poses); failure causes:

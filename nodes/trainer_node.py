@@ -2,9 +2,9 @@
 and publishes the model's path on ``model`` (String, transient-local).
 
 Parameters: ``data`` (empty: wait for ``dataset``), ``object``, ``out``, ``variant``, ``epochs``,
-``batch_size``, ``size``, ``focal_px``, ``symmetry_axis`` ("x y z" in the object frame, empty: none),
-``device``. Publishes ``trainer/progress`` (String JSON: step, epoch, loss,
-state) once a second from the run's loss.csv.
+``batch_size``, ``size``, ``device`` and ``options`` (more TrainConfig fields as space-separated key=value,
+values parsed as YAML: "focal_px=330 schedule=cosine symmetry_axis=[0,0,1]"). Publishes
+``trainer/progress`` (String JSON: step, epoch, loss, state) once a second from the run's loss.csv.
 """
 
 from __future__ import annotations
@@ -12,10 +12,24 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import yaml
+
 from dope_training.export import export_checkpoint
 from dope_training.train import TrainConfig, read_losses, train
 from nodes.background import BackgroundJob
 from nodes.ros import Node, latched, msgs, run_node
+from pegasus_gen.errors import PegasusError
+
+
+def parse_options(text: str) -> dict:
+    """"key=value key=value" -> {key: YAML value}; a clear error for an item without "="."""
+    options = {}
+    for item in text.split():
+        if "=" not in item:
+            raise PegasusError(f"trainer_node: options item {item!r} is not key=value")
+        key, value = item.split("=", 1)
+        options[key] = yaml.safe_load(value)
+    return options
 
 
 class TrainerNode(Node):
@@ -23,8 +37,7 @@ class TrainerNode(Node):
         super().__init__("trainer_node", **kwargs)
         p = {name: self.declare_parameter(name, default).value for name, default in (
             ("data", ""), ("object", ""), ("out", "runs/dope"), ("variant", "light"), ("epochs", 10),
-            ("batch_size", 8), ("size", 0), ("focal_px", 0.0), ("symmetry_axis", ""),
-            ("device", "auto"), ("loader_workers", 2))}
+            ("batch_size", 8), ("size", 0), ("device", "auto"), ("loader_workers", 2), ("options", ""))}
         self.params = p
         self.job = None
         self.progress_pub = self.create_publisher(msgs.String, "trainer/progress", 10)
@@ -42,7 +55,7 @@ class TrainerNode(Node):
         def work():  # the config is built (and checked) in the job: a bad parameter fails it, visibly
             run = train(TrainConfig(data=[data], object=str(p["object"]), out=p["out"], variant=p["variant"],
                                     epochs=p["epochs"], batch_size=p["batch_size"], size=p["size"],
-                                    focal_px=p["focal_px"], symmetry_axis=p["symmetry_axis"].split() or None,
+                                    **parse_options(p["options"]),
                                     device=p["device"], loader_workers=p["loader_workers"]))
             return export_checkpoint(run / "last.pt", run / "model.onnx")[0]
 

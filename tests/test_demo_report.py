@@ -45,12 +45,12 @@ def test_report_shows_the_figures_it_was_given(tmp_path):
                 "pass_10cm": rng.uniform(), "median_m": rng.uniform(0.001, 0.1)}
 
     evaluation = {"object": {"name": "noodle_cup_red"}, "instances": 17, "misses": 3, "metric": "ADD-S",
-                  "result": result(), "refined": {"rejected": 4, "result": result()}}
+                  "ADD-S": result(), "refined": {"rejected": 4, "ADD-S": result()}}
     grasp = {"attempts": 10, "successes": 7, "pose_source": "dope", "median_adds_m": 0.0123,
              "failure_causes": {"implausible estimate": 2, "missed grasp": 1}}
     times = {"generate (dataset)": 61.0, "train": 302.0, "closed-loop grasping (simulated cell)": 95.0}
     page = write_html(tmp_path, DemoSettings.small(), evaluation, grasp, times, tmp_path / "train").read_text()
-    for r in (evaluation["result"], evaluation["refined"]["result"]):
+    for r in (evaluation["ADD-S"], evaluation["refined"]["ADD-S"]):
         for key in ("auc_0_10cm",):
             assert f"{r[key]:.3f}" in page
         for key in ("pass_2cm", "pass_5cm", "pass_10cm"):

@@ -20,6 +20,7 @@ from dope_training.infer import DopeModel, on_centroid_ray
 from dope_training.train import ShardSampler, TrainConfig, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.geometry.cuboid import cuboid_points
 from pegasus_gen.geometry.pose_error import add_error, adds_error
 
 
@@ -168,15 +169,21 @@ def test_refinement_starts_on_the_detected_centroids_ray():
     rng = np.random.default_rng(5)
     K = np.array([[554.0, 0, 320], [0, 554.0, 240], [0, 0, 1]])
     dist = np.array([0.05, -0.02, 0.001, 0.0, 0.0])
+    cuboid = cuboid_points([-0.04, -0.04, -0.05], [0.08, 0.08, 0.1])
     for _ in range(20):
         T = np.eye(4)
         T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
         T[:3, 3] = rng.uniform([-0.2, -0.2, 0.4], [0.2, 0.2, 0.9])
-        centre = rng.uniform(-0.05, 0.05, 3)
         centroid_px = rng.uniform([100, 100], [540, 380])
-        moved = on_centroid_ray(T, centre, centroid_px, K, dist)
-        np.testing.assert_allclose(moved[:3, :3], T[:3, :3])
-        c = moved[:3, :3] @ centre + moved[:3, 3]
-        assert c[2] == pytest.approx((T[:3, :3] @ centre + T[:3, 3])[2])
-        projected = cv2.projectPoints(c[None], np.zeros(3), np.zeros(3), K, dist)[0].reshape(2)
-        np.testing.assert_allclose(projected, centroid_px, atol=1e-3)
+        surface = rng.uniform(0.3, 1.0)
+        depth = np.zeros((480, 640))
+        u, v = np.round(centroid_px).astype(int)
+        depth[v - 4:v + 5, u - 4:u + 5] = surface  # a 9x9 patch; the rest has no depth
+        for depth_m, z in ((None, (T[:3, :3] @ cuboid[8] + T[:3, 3])[2]),
+                           (depth, surface + np.ptp((cuboid[:8] - cuboid[8]) @ T[2, :3]) / 2)):
+            moved = on_centroid_ray(T, cuboid, centroid_px, K, dist, depth_m)
+            np.testing.assert_allclose(moved[:3, :3], T[:3, :3])
+            c = moved[:3, :3] @ cuboid[8] + moved[:3, 3]
+            assert c[2] == pytest.approx(z)
+            projected = cv2.projectPoints(c[None], np.zeros(3), np.zeros(3), K, dist)[0].reshape(2)
+            np.testing.assert_allclose(projected, centroid_px, atol=1e-3)

@@ -48,10 +48,11 @@ def cmd_demo(args) -> int:
 
 
 def cmd_demo_loop(args) -> int:
-    from nodes.demo import run_demo
+    from nodes.demo import DemoSettings, run_demo
 
     t0 = time.perf_counter()
-    report = run_demo(args.out, full=args.full, library=args.library, host=args.host)
+    settings = DemoSettings.full() if args.full else DemoSettings.small()
+    report = run_demo(args.out, settings, library=args.library, host=args.host)
     print(f"demo loop done in {(time.perf_counter() - t0) / 60:.1f} min; report: {report}")
     return 0
 
