@@ -7,8 +7,9 @@ multiple of 8, run; belief peaks are grouped into instances by the affinities (`
 the keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as
 cv2.resize samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt) with the camera K gives the
 pose. Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are
-solved, see ``pnp``. With a depth image, each pose is then refined against it (``refine.refine_pose``),
-starting from the pose moved onto the ray through the detected centroid (``on_centroid_ray``).
+solved, see ``pnp``. With a depth image, each pose is then refined against it
+(``refine.refine_multistart``), starting from the pose moved onto the ray through the detected centroid at
+the depth seen there (``on_centroid_ray``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_c
 from dope_training.data import input_scale
 from dope_training.decode import find_keypoints
 from dope_training.pnp import solve_pose
-from dope_training.refine import Refinement, refine_pose
+from dope_training.refine import Refinement, refine_multistart
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
 
@@ -165,7 +166,7 @@ class DopeModel:
             pose = ObjectPose(solved[0], det.score, keypoints, solved[1])
             if depth_m is not None:
                 start = on_centroid_ray(pose.T, self.cuboid, keypoints[8], K, dist, depth_m)
-                pose.refinement = refine_pose(start, depth_m, K, np.asarray(self.object.surface_points),
+                pose.refinement = refine_multistart(start, depth_m, K, np.asarray(self.object.surface_points),
                                               np.asarray(self.object.surface_normals), self.object.symmetry_axis)
             poses.append(pose)
         return poses

@@ -233,20 +233,64 @@ def depth_support(T: np.ndarray, points: np.ndarray, normals: np.ndarray, depth:
     return float(inliers.mean()), float(np.sqrt(np.mean(gap[inliers] ** 2))) if inliers.any() else 0.0
 
 
-def keep_spin(R: np.ndarray, R_in: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """R_in [3, 3] turned by the smallest rotation that takes its symmetry axis (R_in @ axis) to R @ axis:
-    R's tilt of the axis with R_in's angle about it. axis [3] unit, object frame."""
-    a, b = R_in @ axis, R @ axis
+def turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """[3, 3]: the smallest rotation that takes the unit vector ``a`` [3] to the unit vector ``b`` [3] (a half
+    turn about some axis perpendicular to ``a`` when they are opposite)."""
     c = float(np.clip(a @ b, -1.0, 1.0))
     w = np.cross(a, b)
     if np.linalg.norm(w) < 1e-12:
         if c > 0:
-            return R_in.copy()
+            return np.eye(3)
         w = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
     w = w / np.linalg.norm(w)
     W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
     s = np.sqrt(max(0.0, 1 - c * c))
-    return (np.eye(3) + s * W + (1 - c) * W @ W) @ R_in
+    return np.eye(3) + s * W + (1 - c) * W @ W
+
+
+def keep_spin(R: np.ndarray, R_in: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """R_in [3, 3] turned by the smallest rotation that takes its symmetry axis (R_in @ axis) to R @ axis:
+    R's tilt of the axis with R_in's angle about it. axis [3] unit, object frame."""
+    return turn(R_in @ axis, R @ axis) @ R_in
+
+
+# 14 directions (the cube's 6 face normals and 8 corners) and the cube's 24 rotations: the other starts of
+# ``refine_multistart``; any direction is within 37 degrees of one of the 14.
+START_DIRECTIONS = np.concatenate([np.concatenate([np.eye(3), -np.eye(3)]),
+                                   np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T / np.sqrt(3)])
+CUBE_ROTATIONS = [np.eye(3)[list(order)] * np.array(signs)[:, None]
+                  for order in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
+                  for signs in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+                  if np.linalg.det(np.eye(3)[list(order)] * np.array(signs)[:, None]) > 0]
+
+
+def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model_points: np.ndarray,
+                      model_normals: np.ndarray | None = None, symmetry_axis: np.ndarray | None = None,
+                      params: RefineParams | None = None) -> Refinement:
+    """``refine_pose`` from T_cam_obj [4, 4] and, when it is rejected, from the same position with other
+    rotations: for a symmetric object the axis turned to each of the 14 ``START_DIRECTIONS`` (camera frame),
+    otherwise the rotation composed with each of the cube's 24 rotations. A wrong rotation from PnP (wrong
+    corners) is beyond ICP's reach; the position from the centroid and the depth is not. Returns the accepted
+    refinement of highest fitness, or the first start's rejection. Arguments as ``refine_pose``."""
+    first = refine_pose(T_cam_obj, depth_m, K, model_points, model_normals, symmetry_axis, params)
+    if first.accepted:
+        return first
+    R = T_cam_obj[:3, :3]
+    if symmetry_axis is not None:
+        axis = np.asarray(symmetry_axis, np.float64) / np.linalg.norm(symmetry_axis)
+        rotations = [turn(R @ axis, d) @ R for d in START_DIRECTIONS]
+    else:
+        rotations = [R @ G for G in CUBE_ROTATIONS if not np.allclose(G, np.eye(3))]
+    middle = (model_points.min(0) + model_points.max(0)) / 2  # turned about the object's middle
+    best = first
+    for rotation in rotations:
+        start = T_cam_obj.copy()
+        start[:3, :3] = rotation
+        start[:3, 3] = R @ middle + T_cam_obj[:3, 3] - rotation @ middle
+        result = refine_pose(start, depth_m, K, model_points, model_normals, symmetry_axis, params)
+        if result.accepted and (not best.accepted or result.fitness > best.fitness):
+            best = result
+    return best
 
 
 def estimate_normals(points: np.ndarray) -> np.ndarray:
