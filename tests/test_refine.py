@@ -8,7 +8,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from dope_training.refine import refine_pose
+from dope_training.refine import refine_multistart, refine_pose
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.renderer import render
@@ -148,3 +148,21 @@ def test_malformed_input_raises_one_clear_error(scenes):
         refine_pose(T, depth, K, points[:, :2])
     with pytest.raises(PegasusError, match="model_normals"):
         refine_pose(T, depth, K, points, scene["normals"][:10])
+
+
+@pytest.mark.parametrize("name", OBJECTS)
+def test_a_rotation_beyond_icps_reach_is_found_from_other_starts(scenes, name):
+    # PnP on poorly found corners gives the right place but a rotation far off (here: a half turn about a
+    # horizontal axis, upside down): one ICP run fails and is rejected; the other starts find the pose.
+    scene = scenes[name]
+    wrong = scene["T"].copy()
+    flip = Rotation.from_rotvec(np.radians([170.0, 0.0, 0.0])).as_matrix()
+    centre = (scene["points"].min(0) + scene["points"].max(0)) / 2
+    wrong[:3, :3] = scene["T"][:3, :3] @ flip
+    wrong[:3, 3] += scene["T"][:3, :3] @ centre - wrong[:3, :3] @ centre
+    assert not refine(scene, wrong).accepted
+    found = refine_multistart(wrong, scene["depth"], scene["K"], scene["points"], scene["normals"], scene["axis"])
+    t_error, r_error = errors(found.T, scene["T"], scene["axis"])
+    assert found.accepted and t_error < MAX_T_ERROR_M and r_error < MAX_R_ERROR_DEG, (found, t_error, r_error)
+    empty = refine_multistart(wrong, scene["empty"], scene["K"], scene["points"], scene["normals"], scene["axis"])
+    assert not empty.accepted  # more starts, still no pose on the empty table
