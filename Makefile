@@ -30,7 +30,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/dope.py
 	$(BIN)/python benchmarks/scan.py
 	$(BIN)/python benchmarks/robot.py
-	$(BIN)/python benchmarks/training.py --work out/bench-training --tag demo-recipe
+	$(BIN)/python benchmarks/training.py --work out/bench-training --tag demo-recipe --recipe demo
 	$(BIN)/python benchmarks/loop.py
 
 setup: $(STAMP)

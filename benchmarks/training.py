@@ -1,15 +1,16 @@
 """DOPE training recipes on a CPU, measured on a fixed held-out set: what ``docs/TRAINING.md`` reports.
 
-Usage: python benchmarks/training.py --work out/bench-training [--tag NAME] [--frames 960] [--camera-fx 554]
-       [--train key=value ...]
+Usage: python benchmarks/training.py --work out/bench-training [--tag NAME] [--recipe demo|dope] [--frames 960]
+       [--camera-fx 554] [--train key=value ...]
 
 Each run: the demo library; a training dataset of the demo's target object (noodle_cup_red, 1-2 per scene,
 0-1 of each distractor) on wooden_table and tiled_floor (``--frames`` frames at 320x240, camera fx
 ``--camera-fx``; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
 left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's camera: 60 degree field of
-view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the TrainConfig fields given as ``--train
-key=value`` (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates of DOPE alone and with
-depth refinement. Prints one row and appends it to ``--work``/results.csv.
+view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the recipe (``demo``: the demo's, from
+``nodes.demo.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields given as
+``--train key=value`` on top (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates of
+DOPE alone and with depth refinement. Prints one row and appends it to ``--work``/results.csv.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ from dope_training.evaluate import evaluate, write_report
 from dope_training.infer import DopeModel
 from dope_training.train import read_losses, train
 from dope_training.train_config import TrainConfig
-from nodes.demo import held_out_overrides
+from nodes.demo import DemoSettings, held_out_overrides
+from nodes.trainer_node import parse_options
 from pegasus_gen.assets.demo import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config
@@ -56,7 +58,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=960, help="training frames (12 per scene)")
     parser.add_argument("--width", type=int, default=320)
     parser.add_argument("--height", type=int, default=240)
-    parser.add_argument("--camera-fx", type=float, default=0.0, help="training camera fx, px (0: 60 degree fov)")
+    parser.add_argument("--recipe", choices=("demo", "dope"), default="demo")
+    parser.add_argument("--camera-fx", type=float, default=DemoSettings.small().camera_fx,
+                        help="training camera fx, px (0: 60 degree fov)")
     parser.add_argument("--distance", default="[0.45, 0.85]", help="training camera distance range, m")
     parser.add_argument("--elevation", default="[30, 70]", help="training camera elevation range, degrees")
     parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields as key=value")
@@ -75,7 +79,10 @@ def main() -> None:
     held_out = dataset(work / "datasets" / "held_out", held_out_overrides(lib.root, TARGET, frames=15))
     t_data = time.monotonic() - t0
 
-    fields = {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.train)}
+    demo = DemoSettings.small()
+    fields = {"size": demo.size, "epochs": demo.epochs, **parse_options(demo.train_options())} \
+        if args.recipe == "demo" else {}
+    fields |= {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.train)}
     out = work / "runs" / args.tag
     cfg = TrainConfig(data=[str(data)], object=TARGET, out=str(out), device="cpu", **fields)
     t0 = time.monotonic()
@@ -86,7 +93,8 @@ def main() -> None:
     report = evaluate(DopeModel(out / "last.pt"), held_out, "train_pbr", refine=True)
     write_report(report, out / "eval_held_out")
     dope, refined = report["ADD-S"], report["refined"]["ADD-S"]
-    row = {"tag": args.tag, "frames": args.frames, "camera_fx": args.camera_fx, "train": " ".join(args.train),
+    row = {"tag": args.tag, "recipe": args.recipe, "frames": args.frames, "camera_fx": args.camera_fx,
+           "train": " ".join(args.train),
            "train_min": round(t_train / 60, 1), "images_per_s": round(rate, 1),
            "final_loss": round(rows[-1]["loss"], 5),
            "instances": report["instances"], "misses": report["misses"], "false_positives": report["false_positives"],

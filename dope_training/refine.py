@@ -73,6 +73,7 @@ class RefineParams:
     max_rmse_m: float = 0.003  # metres, RMSE of those correspondences
     max_move_fraction: float = 0.5  # the object's centre may move by this fraction of its initial distance
     max_rotation_deg: float = 45.0  # degrees the refined rotation may differ from the input's
+    confident_fitness: float = 0.95  # refine_multistart tries its other starts unless the first reaches this
 
 
 def refine_pose(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model_points: np.ndarray,
@@ -267,13 +268,16 @@ CUBE_ROTATIONS = [np.eye(3)[list(order)] * np.array(signs)[:, None]
 def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model_points: np.ndarray,
                       model_normals: np.ndarray | None = None, symmetry_axis: np.ndarray | None = None,
                       params: RefineParams | None = None) -> Refinement:
-    """``refine_pose`` from T_cam_obj [4, 4] and, when it is rejected, from the same position with other
-    rotations: for a symmetric object the axis turned to each of the 14 ``START_DIRECTIONS`` (camera frame),
-    otherwise the rotation composed with each of the cube's 24 rotations. A wrong rotation from PnP (wrong
-    corners) is beyond ICP's reach; the position from the centroid and the depth is not. Returns the accepted
-    refinement of highest fitness, or the first start's rejection. Arguments as ``refine_pose``."""
-    first = refine_pose(T_cam_obj, depth_m, K, model_points, model_normals, symmetry_axis, params)
-    if first.accepted:
+    """``refine_pose`` from T_cam_obj [4, 4] and, unless that is accepted with a fitness of at least
+    ``params.confident_fitness``, from the same position with other rotations: for a symmetric object the
+    axis turned to each of the 14 ``START_DIRECTIONS`` (camera frame), otherwise the rotation composed with
+    each of the cube's 23 other rotations. A wrong rotation from PnP (wrong corners) is beyond ICP's reach
+    (and a cup upside down still fits its depth at a fitness of 0.83); the position from the centroid and
+    the depth is not. Returns the accepted refinement of highest fitness, or the first start's rejection.
+    Arguments as ``refine_pose``."""
+    p = params or RefineParams()
+    first = refine_pose(T_cam_obj, depth_m, K, model_points, model_normals, symmetry_axis, p)
+    if first.accepted and first.fitness >= p.confident_fitness:
         return first
     R = T_cam_obj[:3, :3]
     if symmetry_axis is not None:
@@ -287,7 +291,7 @@ def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
         start = T_cam_obj.copy()
         start[:3, :3] = rotation
         start[:3, 3] = R @ middle + T_cam_obj[:3, 3] - rotation @ middle
-        result = refine_pose(start, depth_m, K, model_points, model_normals, symmetry_axis, params)
+        result = refine_pose(start, depth_m, K, model_points, model_normals, symmetry_axis, p)
         if result.accepted and (not best.accepted or result.fitness > best.fitness):
             best = result
     return best

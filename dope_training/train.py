@@ -24,7 +24,7 @@ import csv
 import math
 import os
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import cv2
@@ -223,7 +223,10 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
     samples, target = load_training_samples(cfg)
 
     torch.manual_seed(cfg.seed)
-    model = DopeNetwork(ModelConfig.of(cfg.variant))
+    architecture = ModelConfig.of(cfg.variant)
+    if cfg.batch_norm is not None:
+        architecture = replace(architecture, batch_norm=cfg.batch_norm)
+    model = DopeNetwork(architecture)
     if state is None and cfg.variant == "full":
         if not load_vgg19_weights(model, cfg.vgg19) and rank == 0:
             print("note: no ImageNet VGG19 weights found (--vgg19 PATH or the torch hub cache): trunk from scratch")

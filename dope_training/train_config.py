@@ -20,6 +20,8 @@ class TrainConfig(BaseModel):
     split: str = Field("train_pbr", description="BOP split to train on")
     variant: Literal["full", "light"] = Field(
         "light", description="full: the original DOPE (GPU); light: 3 narrow stages for CPU")
+    batch_norm: Optional[bool] = Field(None, description="BatchNorm after every hidden convolution (default: the "
+                                                         "variant's: light yes, full no)")
     size: int = Field(0, ge=0, description="crop size, px (default: full 400, light 320)")
     focal_px: float = Field(0.0, ge=0.0, description="network-input focal length, px: images are scaled so that "
                             "their fx becomes this (objects look alike to the network from any camera); 0: "

@@ -20,7 +20,7 @@ def test_demo_datasets_see_objects_at_the_cell_cameras_scale(tmp_path):
     cfg = load_config(path)
     cell_fx = intrinsics_from_fov(640, 480, 60.0)[0, 0]
     assert cfg.camera.fx == cfg.camera.fy == s.camera_fx == pytest.approx(cell_fx, rel=1e-3) == CELL_CAMERA_FX
-    assert cfg.scenes * cfg.frames_per_scene == s.scenes * s.frames and s.focal_px == CELL_CAMERA_FX
+    assert cfg.scenes * cfg.frames_per_scene == s.scenes * s.frames
     assert [o.asset for o in cfg.objects] == [s.objects.split(",")[0], *s.distractors]
     held_out = load_config(None, held_out_overrides(tmp_path / "lib", "noodle_cup_red"))
     assert held_out.environments == ["store_shelf"] and held_out.environments[0] not in s.environments

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 from pathlib import Path
@@ -101,10 +102,11 @@ def add_commands(sub) -> None:
 
     p = sub.add_parser("train", help="train DOPE for one object on BOP datasets (or DOPE/NDDS folders)")
     options.add_config_flags(p, TrainConfig, (
-        "data", "object", "out", "split", "variant", "epochs", "batch_size", "size", "focal_px", "lr", "schedule",
-        "peak_weight", "symmetry_axis", "min_visibility", "augment", "device", "amp", "loader_workers", "seed", "vgg19",
-        "object_size"),
+        "data", "object", "out", "split", "variant", "batch_norm", "epochs", "batch_size", "size", "focal_px", "lr",
+        "schedule", "peak_weight", "symmetry_axis", "min_visibility", "augment", "device", "amp", "loader_workers",
+        "seed", "vgg19", "object_size"),
         data={"action": "append", "nargs": None, "help": "BOP dataset root or DOPE/NDDS folder (repeatable)"},
+        batch_norm={"action": argparse.BooleanOptionalAction},
         object_size={"metavar": ("X", "Y", "Z")}, symmetry_axis={"metavar": ("X", "Y", "Z")})
     p.add_argument("--resume", action="store_true", help="continue the training in --out (more --epochs)")
     p.set_defaults(func=cmd_train)
