@@ -28,9 +28,8 @@ import yaml
 from dope_training.evaluate import evaluate, write_report
 from dope_training.infer import DopeModel
 from dope_training.train import read_losses, train
-from dope_training.train_config import TrainConfig
+from dope_training.train_config import TrainConfig, parse_options
 from nodes.demo import DemoSettings, held_out_overrides
-from nodes.trainer_node import parse_options
 from pegasus_gen.assets.demo import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config

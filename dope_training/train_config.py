@@ -5,7 +5,10 @@ from __future__ import annotations
 
 from typing import Literal, Optional
 
+import yaml
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from pegasus_gen.errors import PegasusError
 
 
 class TrainConfig(BaseModel):
@@ -56,3 +59,18 @@ class TrainConfig(BaseModel):
         self.size = self.size or (400 if self.variant == "full" else 320)
         self.lr = self.lr or (1e-4 if self.variant == "full" else 1e-3)
         return self
+
+
+def parse_options(text: str) -> dict:
+    """TrainConfig fields from "key=value key=value" (values parsed as YAML, e.g. "focal_px=330
+    symmetry_axis=[0,0,1]") as a dict; one clear error for an item without "=" or with bad YAML."""
+    options = {}
+    for item in text.split():
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise PegasusError(f"training option {item!r} is not key=value")
+        try:
+            options[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise PegasusError(f"training option {item!r}: the value is not valid YAML") from None
+    return options

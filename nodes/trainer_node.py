@@ -12,24 +12,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import yaml
-
 from dope_training.export import export_checkpoint
 from dope_training.train import TrainConfig, read_losses, train
+from dope_training.train_config import parse_options
 from nodes.background import BackgroundJob
 from nodes.ros import Node, latched, msgs, run_node
-from pegasus_gen.errors import PegasusError
-
-
-def parse_options(text: str) -> dict:
-    """"key=value key=value" -> {key: YAML value}; a clear error for an item without "="."""
-    options = {}
-    for item in text.split():
-        if "=" not in item:
-            raise PegasusError(f"trainer_node: options item {item!r} is not key=value")
-        key, value = item.split("=", 1)
-        options[key] = yaml.safe_load(value)
-    return options
 
 
 class TrainerNode(Node):

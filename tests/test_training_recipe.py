@@ -10,8 +10,8 @@ import yaml
 from dope_training.evaluate import evaluate
 from dope_training.infer import DopeModel
 from dope_training.train import TrainConfig, train
+from dope_training.train_config import parse_options
 from nodes.demo import DemoSettings, held_out_overrides
-from nodes.trainer_node import parse_options
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 
