@@ -51,6 +51,9 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     assert all(m["add_m"] is not None and m["add_m"] < 0.02 for m in report["per_instance"]), report["per_instance"]
     json_path, png = write_report(report, tmp_path / "eval")
     assert json.loads(json_path.read_text())["ADD"]["pass_2cm"] == 1.0 and cv2.imread(str(png)) is not None
+    refined = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9, refine=True)
+    assert refined["result"] == report["result"] and refined["refined"]["ADD"]["pass_2cm"] == 1.0, refined["refined"]
+    assert refined["refined"]["ADD"]["median_m"] < report["ADD"]["median_m"]  # depth sharpens DOPE's poses
 
     scene = dope_dataset / "train_pbr" / "000000"
     image = cv2.imread(str(scene / "rgb" / "000000.jpg"))[..., ::-1].copy()
