@@ -88,7 +88,8 @@ def _decimate(smooth: o3d.geometry.TriangleMesh, params: MeshParams, closed: boo
     are filled, and for a closed mesh a decimation that stays open is retried with fewer triangles (another
     collapse order) before it is refused."""
     n = len(smooth.triangles)
-    targets = [round(params.max_triangles * f) for f in (1.0, 0.9, 0.8, 0.7)] if n > params.max_triangles else [n]
+    fractions = np.arange(1.0, 0.25, -0.1)  # 100 % of the budget down to 30 %
+    targets = [round(params.max_triangles * f) for f in fractions] if n > params.max_triangles else [n]
     for target in targets:
         mesh = _as_trimesh(smooth if target == n else smooth.simplify_quadric_decimation(target))
         trimesh.repair.fix_normals(mesh)
