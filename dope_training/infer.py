@@ -98,6 +98,9 @@ class DopeModel:
         else:
             self._init_torch(path, device)
         self.cuboid = cuboid_points(self.object.bbox_min, self.object.bbox_size)
+        obj = self.object  # surface samples for depth refinement, as arrays once (None: trained without a model)
+        self.surface = None if obj.surface_points is None else (np.asarray(obj.surface_points, np.float64),
+                                                                np.asarray(obj.surface_normals, np.float64))
 
     def _init_onnx(self, path: Path, device: str) -> None:
         import onnxruntime
@@ -153,7 +156,7 @@ class DopeModel:
         """Poses of the object's instances in an RGB image [H, W, 3] uint8 seen with intrinsics K [3, 3]
         (and OpenCV distortion ``dist``), best score first; instances PnP cannot solve are left out. With
         ``depth_m`` [H, W] (metres, aligned to the image, 0 = none) each pose is also refined against it."""
-        if depth_m is not None and self.object.surface_points is None:
+        if depth_m is not None and self.surface is None:
             raise PegasusError(f"{self.path}: this model carries no surface points of its object (trained on a "
                                "DOPE/NDDS folder), so it cannot be refined with depth")
         beliefs, affinities, (sx, sy) = self.maps(image, K)
@@ -166,7 +169,6 @@ class DopeModel:
             pose = ObjectPose(solved[0], det.score, keypoints, solved[1])
             if depth_m is not None:
                 start = on_centroid_ray(pose.T, self.cuboid, keypoints[8], K, dist, depth_m)
-                pose.refinement = refine_multistart(start, depth_m, K, np.asarray(self.object.surface_points),
-                                              np.asarray(self.object.surface_normals), self.object.symmetry_axis)
+                pose.refinement = refine_multistart(start, depth_m, K, *self.surface, self.object.symmetry_axis)
             poses.append(pose)
         return poses
