@@ -126,10 +126,11 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         depth = frame.read_depth() if refine else None
         estimates = model.estimate(image[..., ::-1].copy(), frame.K, min_score=min_score, depth_m=depth)
         images_seen += 1
-        pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in estimates])
+        solved = [e for e in estimates if e.T is not None]  # DOPE + PnP alone
+        pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in solved])
         false_positives += extra
         for i, j, add, adds in pairs:
-            est = estimates[j] if j is not None else None
+            est = solved[j] if j is not None else None
             matches.append(Match(frame.scene.name, frame.im_id, truths[i].index, add, adds,
                                  est.score if est else None, est.T if est else None, truths[i].T))
         if refine:

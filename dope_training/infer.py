@@ -9,7 +9,10 @@ cv2.resize samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt) wi
 pose. Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are
 solved, see ``pnp``. With a depth image, each pose is then refined against it
 (``refine.refine_multistart``), starting from the pose moved onto the ray through the detected centroid at
-the depth seen there (``on_centroid_ray``).
+the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP cannot solve (too few corners
+joined it, or they put the object behind the camera) is then not lost: its refinement starts on the same
+ray with the object's own axes (the several-start refinement tries the other rotations), and it is kept
+when the depth confirms it.
 """
 
 from __future__ import annotations
@@ -31,15 +34,17 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
 
 STRIDE = 8
+NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])  # the object's axes, 1 m ahead
 
 
 @dataclass
 class ObjectPose:
-    """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes) from DOPE + PnP, the
+    """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes) from DOPE + PnP (None
+    when PnP could not solve its keypoints: then kept only because depth refinement found it), the
     centroid's belief, keypoints [9, 2] in image pixels (NaN where not found), the mean reprojection error
-    (px) and, when a depth image was given, the depth refinement of T (``refine.Refinement``)."""
+    (px, NaN without PnP) and, when a depth image was given, the depth refinement (``refine.Refinement``)."""
 
-    T: np.ndarray
+    T: np.ndarray | None
     score: float
     keypoints: np.ndarray
     reprojection_error: float
@@ -51,9 +56,10 @@ class ObjectPose:
         return self.refinement.T if self.refinement is not None and self.refinement.accepted else None
 
     def to_json(self) -> dict:
-        out = {"R": self.T[:3, :3].tolist(), "t_m": self.T[:3, 3].tolist(), "score": self.score,
+        out = {"R": None if self.T is None else self.T[:3, :3].tolist(),
+               "t_m": None if self.T is None else self.T[:3, 3].tolist(), "score": self.score,
                "keypoints_px": [None if np.isnan(p).any() else p.tolist() for p in self.keypoints],
-               "reprojection_error_px": self.reprojection_error}
+               "reprojection_error_px": None if self.T is None else self.reprojection_error}
         if self.refinement is not None:
             r = self.refinement
             out["refined"] = {"accepted": r.accepted, "R": r.T[:3, :3].tolist(), "t_m": r.T[:3, 3].tolist(),
@@ -155,7 +161,8 @@ class DopeModel:
                  min_score: float = 0.1, depth_m: np.ndarray | None = None) -> list[ObjectPose]:
         """Poses of the object's instances in an RGB image [H, W, 3] uint8 seen with intrinsics K [3, 3]
         (and OpenCV distortion ``dist``), best score first; instances PnP cannot solve are left out. With
-        ``depth_m`` [H, W] (metres, aligned to the image, 0 = none) each pose is also refined against it."""
+        ``depth_m`` [H, W] (metres, aligned to the image, 0 = none) each pose is also refined against it, and
+        an instance PnP cannot solve is kept (T None) when its refinement from the centroid's ray is accepted."""
         if depth_m is not None and self.surface is None:
             raise PegasusError(f"{self.path}: this model carries no surface points of its object (trained on a "
                                "DOPE/NDDS folder), so it cannot be refined with depth")
@@ -163,12 +170,14 @@ class DopeModel:
         poses = []
         for det in find_keypoints(beliefs, affinities, stride=STRIDE, min_score=min_score):
             keypoints = (det.keypoints + 0.5) / [sx, sy] - 0.5
-            solved = solve_pose(keypoints, self.cuboid, K, dist)
-            if solved is None:
+            T, error = solve_pose(keypoints, self.cuboid, K, dist) or (None, np.nan)
+            if T is None and depth_m is None:
                 continue
-            pose = ObjectPose(solved[0], det.score, keypoints, solved[1])
+            pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:
-                start = on_centroid_ray(pose.T, self.cuboid, keypoints[8], K, dist, depth_m)
+                start = on_centroid_ray(NO_PNP_START if T is None else T, self.cuboid, keypoints[8], K, dist, depth_m)
                 pose.refinement = refine_multistart(start, depth_m, K, *self.surface, self.object.symmetry_axis)
+                if pose.T is None and not pose.refinement.accepted:
+                    continue
             poses.append(pose)
         return poses

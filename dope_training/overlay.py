@@ -22,14 +22,15 @@ KEYPOINT_COLOUR = (255, 255, 0)
 def draw_poses(image: np.ndarray, K: np.ndarray, poses: list[ObjectPose], obj: TargetObject) -> np.ndarray:
     """A copy of ``image`` [H, W, 3] uint8 RGB with, per pose, the object's model box and axes at T_cam_obj
     (K [3, 3] px), its found keypoints (px) as dots and the label "name score"; where depth refinement
-    accepted the pose, the refined box too (labelled "refined")."""
+    accepted the pose, the refined box too (labelled "refined"; alone when PnP gave no pose)."""
     overlay = image.copy()
     for pose in poses:
-        draw_instance(overlay, K, pose.T, np.array(obj.bbox_min), np.array(obj.bbox_size), None, None,
-                      POSE_COLOUR, f"{obj.name} {pose.score:.2f}")
+        if pose.T is not None:
+            draw_instance(overlay, K, pose.T, np.array(obj.bbox_min), np.array(obj.bbox_size), None, None,
+                          POSE_COLOUR, f"{obj.name} {pose.score:.2f}")
         if pose.refined is not None:
             draw_instance(overlay, K, pose.refined, np.array(obj.bbox_min), np.array(obj.bbox_size), None, None,
-                          REFINED_COLOUR, "refined")
+                          REFINED_COLOUR, "refined" if pose.T is not None else f"refined {obj.name} {pose.score:.2f}")
         for x, y in pose.keypoints[np.isfinite(pose.keypoints).all(1)]:
             cv2.circle(overlay, (int(round(x)), int(round(y))), 3, KEYPOINT_COLOUR, -1, cv2.LINE_AA)
     return overlay

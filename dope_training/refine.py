@@ -19,12 +19,13 @@ keeps the input's angle about that axis: after each stage its rotation is replac
 turned by the smallest rotation that takes the input's axis to the refined axis, so only the axis' tilt
 and the translation are refined and the result does not spin.
 
-Gate: accepted only if the crop held at least ``min_depth_points`` depth points, the fitness is at least
-``min_fitness``, the RMSE of its correspondences at most ``max_rmse_m``, and the object moved by at most
+Gate: accepted only if the crop held at least ``min_depth_points`` depth points, at most ``max_occluded`` of
+the visible model points are hidden behind nearer depth (another object, the shelf's edge), the fitness
+(over the rest) is at least ``min_fitness``, the RMSE of its correspondences at most ``max_rmse_m``, and the object moved by at most
 ``max_move_fraction`` of its initial distance from the camera and turned by at most ``max_rotation_deg``;
 otherwise the input pose comes back with ``accepted=False`` and a one-line reason. Fitness is the fraction
-of the visible model points within the last correspondence distance of the depth pixel each projects to,
-measured along the point's normal. Pairing along the ray (not with the nearest scene point in 3D) counts a
+of the visible, unoccluded model points within the last correspondence distance of the depth pixel each
+projects to, measured along the point's normal (``depth_support``). Pairing along the ray (not with the nearest scene point in 3D) counts a
 point hidden behind the observed surface as unsupported: with the object absent, ICP sinks the model into
 the table until one face lies in its plane, and a 3D nearest neighbour would support its hidden sides.
 Only malformed inputs raise (``PegasusError``).
@@ -32,7 +33,7 @@ Only malformed inputs raise (``PegasusError``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -44,15 +45,22 @@ from pegasus_gen.errors import PegasusError
 @dataclass
 class Refinement:
     """T [4, 4] refined T_cam_obj (metres, OpenCV camera frame; the input pose when rejected), accepted,
-    fitness (fraction of the visible model points with a depth point within the final correspondence
+    fitness (fraction of the visible, unoccluded model points with a depth point within the final correspondence
     distance: the depth pixel each projects to, distance along the point's normal; see ``depth_support``),
-    rmse_m (metres, of those correspondences), reason ('' when accepted, else one short line)."""
+    rmse_m (metres, of those correspondences), reason ('' when accepted, else one short line), occluded
+    (fraction of the visible model points hidden behind nearer depth)."""
 
     T: np.ndarray
     accepted: bool
     fitness: float
     rmse_m: float
     reason: str
+    occluded: float = 0.0
+
+    @property
+    def support(self) -> float:
+        """The fraction of all the visible model points the depth confirms: fitness x (1 - occluded)."""
+        return self.fitness * (1.0 - self.occluded)
 
 
 @dataclass
@@ -69,11 +77,12 @@ class RefineParams:
     distances_m: tuple[float, ...] = (0.03, 0.015, 0.008, 0.004)  # ICP correspondence distance per stage, metres
     iterations: int = 30  # ICP iterations per stage at most
     min_depth_points: int = 100  # depth points needed in the crop
-    min_fitness: float = 0.8  # fraction of the visible model points with a depth point within distances_m[-1]
+    min_fitness: float = 0.8  # fraction of the visible, unoccluded model points with depth within distances_m[-1]
+    max_occluded: float = 0.5  # fraction of the visible model points that nearer depth may hide
     max_rmse_m: float = 0.003  # metres, RMSE of those correspondences
     max_move_fraction: float = 0.5  # the object's centre may move by this fraction of its initial distance
     max_rotation_deg: float = 45.0  # degrees the refined rotation may differ from the input's
-    confident_fitness: float = 0.95  # refine_multistart tries its other starts unless the first reaches this
+    confident_fitness: float = 0.95  # refine_multistart tries other starts unless the first's support reaches this
 
 
 def refine_pose(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model_points: np.ndarray,
@@ -97,8 +106,8 @@ def refine_pose(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model
     centre = (points.min(0) + points.max(0)) / 2
     radius = float(np.linalg.norm(points - centre, axis=1).max())
 
-    def reject(reason: str, fitness: float = 0.0, rmse: float = 0.0) -> Refinement:
-        return Refinement(T_in.copy(), False, fitness, rmse, reason)
+    def reject(reason: str, fitness: float = 0.0, rmse: float = 0.0, occluded: float = 0.0) -> Refinement:
+        return Refinement(T_in.copy(), False, fitness, rmse, reason, occluded)
 
     if (T_in[:3, :3] @ centre + T_in[:3, 3])[2] <= radius:
         return reject("the pose puts the object behind or against the camera")
@@ -114,19 +123,22 @@ def refine_pose(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model
     if not np.isfinite(T).all():
         return reject("ICP diverged")
     seen = visible(T, points, normals, K, depth.shape, p.max_facing_deg)
-    fitness, rmse = depth_support(T, points[seen], normals[seen], depth, K, p.distances_m[-1])
+    fitness, rmse, occluded = depth_support(T, points[seen], normals[seen], depth, K, p.distances_m[-1])
     moved = float(np.linalg.norm((T[:3, :3] - T_in[:3, :3]) @ centre + T[:3, 3] - T_in[:3, 3]))
     start = float(np.linalg.norm(T_in[:3, :3] @ centre + T_in[:3, 3]))
     turned = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3].T @ T_in[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    if occluded > p.max_occluded:
+        return reject(f"{100 * occluded:.0f} % of the object hidden by nearer depth > {100 * p.max_occluded:.0f} %",
+                      fitness, rmse, occluded)
     if fitness < p.min_fitness:
-        return reject(f"fitness {fitness:.2f} < {p.min_fitness}", fitness, rmse)
+        return reject(f"fitness {fitness:.2f} < {p.min_fitness}", fitness, rmse, occluded)
     if rmse > p.max_rmse_m:
-        return reject(f"rmse {rmse * 1e3:.1f} mm > {p.max_rmse_m * 1e3:.1f} mm", fitness, rmse)
+        return reject(f"rmse {rmse * 1e3:.1f} mm > {p.max_rmse_m * 1e3:.1f} mm", fitness, rmse, occluded)
     if moved > p.max_move_fraction * start:
-        return reject(f"moved {moved:.3f} m > {p.max_move_fraction} x {start:.3f} m", fitness, rmse)
+        return reject(f"moved {moved:.3f} m > {p.max_move_fraction} x {start:.3f} m", fitness, rmse, occluded)
     if turned > p.max_rotation_deg:
-        return reject(f"turned {turned:.0f} deg > {p.max_rotation_deg:.0f} deg", fitness, rmse)
-    return Refinement(T, True, fitness, rmse, "")
+        return reject(f"turned {turned:.0f} deg > {p.max_rotation_deg:.0f} deg", fitness, rmse, occluded)
+    return Refinement(T, True, fitness, rmse, "", occluded)
 
 
 def icp(T: np.ndarray, scene: o3d.geometry.PointCloud, points: np.ndarray, normals: np.ndarray, K: np.ndarray,
@@ -214,15 +226,20 @@ def visible(T: np.ndarray, points: np.ndarray, normals: np.ndarray, K: np.ndarra
 
 
 def depth_support(T: np.ndarray, points: np.ndarray, normals: np.ndarray, depth: np.ndarray, K: np.ndarray,
-                  distance: float) -> tuple[float, float]:
-    """(fitness, rmse metres) of model points [N, 3] with outward normals [N, 3] (object frame, metres) at
-    T_cam_obj [4, 4] against depth [H, W] (metres, 0 = none). Each point is paired with the depth pixel it
-    projects to and their distance is measured along the point's normal (point to plane); fitness is the
-    fraction of the points within ``distance`` (metres), rmse the RMS distance of those. Pairing along the
+                  distance: float) -> tuple[float, float, float]:
+    """(fitness, rmse metres, occluded fraction) of model points [N, 3] with outward normals [N, 3] (object
+    frame, metres) at T_cam_obj [4, 4] against depth [H, W] (metres, 0 = none). Each point is paired with the
+    depth pixel it projects to and their distance is measured along the point's normal (point to plane). A
+    point not within ``distance`` (metres) whose depth pixel lies nearer than it by more than ``distance`` is
+    occluded: something in front hides it, so it neither supports nor contradicts the pose; unless the depth
+    points that support the pose lie in one plane (their spread off it under ``distance``), then no point is:
+    a plane cannot tell the object from a surface it would be sunk in (a box pushed into the table until
+    one face is in the table's plane has its other faces "occluded" by the table). Fitness is the fraction of the
+    points not occluded that lie within ``distance``, rmse the RMS distance of those. Pairing along the
     point's own ray, a point hidden behind the observed surface finds no support, where its nearest
     neighbour in 3D could lie on that surface."""
     if len(points) == 0:
-        return 0.0, 0.0
+        return 0.0, 0.0, 1.0
     cam = points @ T[:3, :3].T + T[:3, 3]
     u, v = _project(cam, K)
     ui = np.clip(np.round(u).astype(int), 0, depth.shape[1] - 1)
@@ -231,7 +248,21 @@ def depth_support(T: np.ndarray, points: np.ndarray, normals: np.ndarray, depth:
     xyz = np.stack([(ui - K[0, 2]) * z / K[0, 0], (vi - K[1, 2]) * z / K[1, 1], z], axis=1)
     gap = np.where(z > 0, np.abs(np.einsum("ij,ij->i", xyz - cam, normals @ T[:3, :3].T)), np.inf)
     inliers = gap <= distance
-    return float(inliers.mean()), float(np.sqrt(np.mean(gap[inliers] ** 2))) if inliers.any() else 0.0
+    occluded = ~inliers & (z > 0) & (z < cam[:, 2] - distance)
+    if not _off_one_plane(xyz[inliers], distance):
+        occluded[:] = False
+    if occluded.all():
+        return 0.0, 0.0, 1.0
+    rmse = float(np.sqrt(np.mean(gap[inliers] ** 2))) if inliers.any() else 0.0
+    return float(inliers.sum() / (~occluded).sum()), rmse, float(occluded.mean())
+
+
+def _off_one_plane(points: np.ndarray, min_std_m: float) -> bool:
+    """Whether points [N, 3] (metres) stand out of their best-fitting plane: their spread along its normal
+    (the smallest principal standard deviation) is at least ``min_std_m``."""
+    if len(points) < 3:
+        return False
+    return bool(np.sqrt(max(np.linalg.eigvalsh(np.cov(points.T))[0], 0.0)) >= min_std_m)
 
 
 def turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -268,16 +299,19 @@ CUBE_ROTATIONS = [np.eye(3)[list(order)] * np.array(signs)[:, None]
 def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model_points: np.ndarray,
                       model_normals: np.ndarray | None = None, symmetry_axis: np.ndarray | None = None,
                       params: RefineParams | None = None) -> Refinement:
-    """``refine_pose`` from T_cam_obj [4, 4] and, unless that is accepted with a fitness of at least
-    ``params.confident_fitness``, from the same position with other rotations: for a symmetric object the
-    axis turned to each of the 14 ``START_DIRECTIONS`` (camera frame), otherwise the rotation composed with
-    each of the cube's 23 other rotations. A wrong rotation from PnP (wrong corners) is beyond ICP's reach
-    (and a cup upside down still fits its depth at a fitness of 0.83); the position from the centroid and
-    the depth is not. Returns the accepted refinement of highest fitness, or the first start's rejection.
+    """``refine_pose`` from T_cam_obj [4, 4] and, unless that is accepted with a support
+    (``Refinement.support``) of at least ``params.confident_fitness``, from the same position with other
+    rotations: for a symmetric object the axis turned to each of the 14 ``START_DIRECTIONS`` (camera frame),
+    otherwise the rotation composed with each of the cube's 23 other rotations. A wrong rotation from PnP
+    (wrong corners) is beyond ICP's reach (and a cup upside down still fits its depth at a fitness of 0.83);
+    the position from the centroid and the depth is not. These starts are a grid, not estimates (the cube's
+    rotations lie up to 63 degrees from the truth), so from them ICP may turn any amount. Returns the
+    accepted refinement of highest support (a pose with much of the object hidden explains less than one
+    without), or the first start's rejection.
     Arguments as ``refine_pose``."""
     p = params or RefineParams()
     first = refine_pose(T_cam_obj, depth_m, K, model_points, model_normals, symmetry_axis, p)
-    if first.accepted and first.fitness >= p.confident_fitness:
+    if first.accepted and first.support >= p.confident_fitness:
         return first
     R = T_cam_obj[:3, :3]
     if symmetry_axis is not None:
@@ -286,13 +320,14 @@ def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
     else:
         rotations = [R @ G for G in CUBE_ROTATIONS if not np.allclose(G, np.eye(3))]
     middle = (model_points.min(0) + model_points.max(0)) / 2  # turned about the object's middle
+    free = replace(p, max_rotation_deg=180.0)  # these starts are a grid, not an estimate to stay near
     best = first
     for rotation in rotations:
         start = T_cam_obj.copy()
         start[:3, :3] = rotation
         start[:3, 3] = R @ middle + T_cam_obj[:3, 3] - rotation @ middle
-        result = refine_pose(start, depth_m, K, model_points, model_normals, symmetry_axis, p)
-        if result.accepted and (not best.accepted or result.fitness > best.fitness):
+        result = refine_pose(start, depth_m, K, model_points, model_normals, symmetry_axis, free)
+        if result.accepted and (not best.accepted or result.support > best.support):
             best = result
     return best
 

@@ -100,7 +100,7 @@ class InferenceNode(Node):
         self.detections_pub.publish(array)
         overlay = draw_poses(image, self.K, poses, obj)
         self.overlay_pub.publish(msgs.numpy_to_image(overlay, "rgb8", msgs.Image, msg.header))
-        best = {"raw": poses[0].T if poses else None,
+        best = {"raw": next((p.T for p in poses if p.T is not None), None),
                 "refined": next((p.refined for p in poses if p.refined is not None), None)}
         stamped = {name: msgs.PoseStamped(header=msg.header, pose=msgs.matrix_to_pose(T, msgs.Pose))
                    for name, T in best.items() if T is not None}

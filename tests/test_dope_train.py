@@ -190,3 +190,23 @@ def test_refinement_starts_on_the_detected_centroids_ray():
             assert c[2] == pytest.approx(z)
             projected = cv2.projectPoints(c[None], np.zeros(3), np.zeros(3), K, dist)[0].reshape(2)
             np.testing.assert_allclose(projected, centroid_px, atol=1e-3)
+
+
+def test_a_centroid_pnp_cannot_solve_is_kept_when_depth_confirms_it(dope_dataset, overfit_dope, monkeypatch):
+    # Corners that did not join their centroid (or put the object behind the camera) leave PnP without a
+    # pose; with depth, the refinement from the centroid's ray still finds the object, and nothing else
+    from pegasus_gen.dataset.bop import bop_frames
+
+    import dope_training.infer
+
+    model = DopeModel(overfit_dope / "last.pt")
+    frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
+    image = cv2.imread(str(frame.image))[..., ::-1].copy()
+    monkeypatch.setattr(dope_training.infer, "solve_pose", lambda *args, **kwargs: None)
+    assert model.estimate(image, frame.K) == []
+    poses = model.estimate(image, frame.K, depth_m=frame.read_depth())
+    assert poses and all(p.T is None and p.refined is not None for p in poses)
+    points = model.surface[0]
+    for inst in [i for i in frame.instances if i.visib_fract > 0.5]:  # each clearly visible cup within 2 cm
+        assert min(adds_error(points, p.refined, inst.T) for p in poses) < 0.02
+    assert len(poses) <= len([i for i in frame.instances if i.visib_fract > 0.0])

@@ -171,3 +171,36 @@ def test_a_rotation_beyond_icps_reach_is_found_from_other_starts(scenes, name):
     assert found.accepted and t_error < MAX_T_ERROR_M and r_error < MAX_R_ERROR_DEG, (found, t_error, r_error)
     empty = refine_multistart(wrong, scene["empty"], scene["K"], scene["points"], scene["normals"], scene["axis"])
     assert not empty.accepted  # more starts, still no pose on the empty table
+
+
+def occluded_depth(scene: dict, fraction: float) -> np.ndarray:
+    """The scene's depth [H, W] with a wall 8 cm in front of the object hiding the left ``fraction`` of its
+    pixels (whole image columns, like a shelf's upright)."""
+    depth = scene["depth"].copy()
+    on_object = np.abs(np.nan_to_num(depth) - np.nan_to_num(scene["empty"])) > 0.005
+    columns = np.nonzero(on_object)[1]
+    cut = np.quantile(columns, fraction)
+    rows = np.nonzero(on_object)[0]
+    wall = np.zeros_like(on_object)
+    wall[max(rows.min() - 20, 0):rows.max() + 20, max(columns.min() - 20, 0):int(cut)] = True
+    depth[wall] = np.nanmin(depth[on_object]) - 0.08
+    assert abs(on_object[:, :int(cut)].sum() / on_object.sum() - fraction) < 0.05
+    return depth
+
+
+@pytest.mark.parametrize("name", OBJECTS)
+def test_a_partly_hidden_object_is_refined_and_a_mostly_hidden_one_rejected(scenes, name):
+    # Held-out shelves hide cups behind their edges and each other: the hidden model points are neither
+    # support nor contradiction, up to max_occluded (0.5) of them
+    scene = scenes[name]
+    rng = np.random.default_rng(13)
+    partly = dict(scene, depth=occluded_depth(scene, 0.3))
+    for _ in range(4):
+        T0 = perturbed(scene["T"], rng, (0.01, 0.02), (5.0, 10.0))
+        result = refine_multistart(T0, partly["depth"], scene["K"], scene["points"], scene["normals"], scene["axis"])
+        dt, dr = errors(result.T, scene["T"], scene["axis"])
+        assert result.accepted and dt < MAX_T_ERROR_M and dr < MAX_R_ERROR_DEG, (result, dt, dr)
+        assert 0.1 < result.occluded < 0.5
+    mostly = occluded_depth(scene, 0.8)
+    result = refine_pose(scene["T"], mostly, scene["K"], scene["points"], scene["normals"], scene["axis"])
+    assert not result.accepted and "hidden" in result.reason, result

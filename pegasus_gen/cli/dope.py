@@ -64,8 +64,8 @@ def cmd_infer(args) -> int:
     png, path = write_poses(args.out, args.image, image, K, poses, model, ms)
     print(f"{len(poses)} instance(s) of {obj.name!r} in {ms:.0f} ms on {model.backend}")
     for pose in poses:
-        print(f"  score {pose.score:.2f}  t = {np.round(pose.T[:3, 3], 4).tolist()} m  "
-              f"reprojection {pose.reprojection_error:.1f} px")
+        print(f"  score {pose.score:.2f}  " + ("PnP: no pose from its keypoints" if pose.T is None else
+              f"t = {np.round(pose.T[:3, 3], 4).tolist()} m  reprojection {pose.reprojection_error:.1f} px"))
         r = pose.refinement
         if r is not None:
             print(f"    depth-refined t = {np.round(r.T[:3, 3], 4).tolist()} m  fitness {r.fitness:.2f}  "
