@@ -20,14 +20,16 @@ turned by the smallest rotation that takes the input's axis to the refined axis,
 and the translation are refined and the result does not spin.
 
 Gate: accepted only if the crop held at least ``min_depth_points`` depth points, at most ``max_occluded`` of
-the visible model points are hidden behind nearer depth (another object, the shelf's edge), the fitness
-(over the rest) is at least ``min_fitness``, the RMSE of its correspondences at most ``max_rmse_m``, and the object moved by at most
-``max_move_fraction`` of its initial distance from the camera and turned by at most ``max_rotation_deg``;
-otherwise the input pose comes back with ``accepted=False`` and a one-line reason. Fitness is the fraction
-of the visible, unoccluded model points within the last correspondence distance of the depth pixel each
-projects to, measured along the point's normal (``depth_support``). Pairing along the ray (not with the nearest scene point in 3D) counts a
-point hidden behind the observed surface as unsupported: with the object absent, ICP sinks the model into
-the table until one face lies in its plane, and a 3D nearest neighbour would support its hidden sides.
+the visible model points are hidden behind nearer depth (another object, a shelf's edge), the fitness (over
+the rest) is at least ``min_fitness``, the RMSE of its correspondences at most ``max_rmse_m``, and the object
+moved by at most ``max_move_fraction`` of its initial distance from the camera and turned by at most
+``max_rotation_deg``; otherwise the input pose comes back with ``accepted=False`` and a one-line reason.
+Fitness is the fraction of the visible, unoccluded model points within the last correspondence distance of
+the depth pixel each projects to, measured along the point's normal (``depth_support``). Pairing along the
+ray (not with the nearest scene point in 3D) counts a point hidden behind the observed surface as
+unsupported: with the object absent, ICP sinks the model into the table until one face lies in its plane,
+and a 3D nearest neighbour would support its hidden sides (and these, hidden by the table, count as
+occluded only if the supporting depth is not one plane).
 Only malformed inputs raise (``PegasusError``).
 """
 

@@ -195,9 +195,8 @@ def test_refinement_starts_on_the_detected_centroids_ray():
 def test_a_centroid_pnp_cannot_solve_is_kept_when_depth_confirms_it(dope_dataset, overfit_dope, monkeypatch):
     # Corners that did not join their centroid (or put the object behind the camera) leave PnP without a
     # pose; with depth, the refinement from the centroid's ray still finds the object, and nothing else
-    from pegasus_gen.dataset.bop import bop_frames
-
     import dope_training.infer
+    from pegasus_gen.dataset.bop import bop_frames
 
     model = DopeModel(overfit_dope / "last.pt")
     frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
