@@ -88,6 +88,7 @@ class EvaluatorNode(Node):
         c = self.current
         c.T_cam_obj = np.linalg.inv(self.T_base_cam) @ sim_object_pose(self.params["host"], c.body)
         c.announced = time.monotonic()
+        self.running_since_ns = self.get_clock().now().nanoseconds
         self.state = "running"
         self.attempt_pub.publish(msgs.String(data=json.dumps({"attempt": c.index, "object": c.object})))
 
@@ -139,20 +140,27 @@ class EvaluatorNode(Node):
 
     def publish_truth(self) -> None:
         """The true pose in the camera frame, streamed like an estimator's (pose_source ground_truth)."""
-        self.truth_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera"),
+        self.truth_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera",
+                                                                   stamp=self.get_clock().now().to_msg()),
                                                 pose=msgs.matrix_to_pose(self.current.T_cam_obj, msgs.Pose)))
 
     # -- subscriptions -----------------------------------------------------------------------------------
+    def this_attempts(self, msg) -> bool:
+        """Whether a stamped message is from a camera frame taken while the current attempt runs (inference
+        can deliver a frame taken before the object was spawned after the attempt has begun)."""
+        stamp = msg.header.stamp
+        return self.state == "running" and stamp.sec * 1_000_000_000 + stamp.nanosec >= self.running_since_ns
+
     def on_pose(self, msg) -> None:
-        if self.state == "running" and self.current.estimate is None:
+        if self.this_attempts(msg) and self.current.estimate is None:
             self.current.estimate = msgs.pose_to_matrix(msg.pose)
 
     def on_overlay(self, msg) -> None:
-        if self.state == "running" and self.current.overlay is None:
+        if self.this_attempts(msg) and self.current.overlay is None:
             self.current.overlay = msgs.image_to_numpy(msg)
 
     def on_image(self, msg) -> None:
-        if self.state == "running" and self.current.image is None:
+        if self.this_attempts(msg) and self.current.image is None:
             self.current.image = msgs.image_to_numpy(msg)
 
     def on_info(self, msg) -> None:

@@ -56,8 +56,8 @@ class Attempt:
     [N, 3] m: the object model's vertices (pose errors); ``bbox_min``/``bbox_size`` [3] m: its model box;
     ``T_cam_obj`` [4, 4] m: the true pose in the camera frame, known once the object has settled;
     ``estimate`` [4, 4] m: the first pose estimate (camera frame); ``overlay``/``image`` [H, W, 3] uint8 RGB:
-    the first estimator overlay and camera image; ``announced``: monotonic seconds; ``robot_started``: the
-    robot node has reported planning or moving."""
+    the first estimator overlay and camera image (each from a frame taken after the announcement);
+    ``announced``: monotonic seconds; ``robot_started``: the robot node has reported planning or moving."""
 
     index: int
     object: str
