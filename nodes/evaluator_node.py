@@ -65,6 +65,7 @@ class EvaluatorNode(Node):
         self.records, self.strips = [], []
         self.state, self.deadline = "idle", 0.0  # deadline: monotonic s when settling/resting ends
         self.current: Attempt | None = None
+        self.running_since_ns = 0  # node-clock ns when the current attempt was announced
         self.pending_status = self.end_status = None  # robot_status that ended the attempt (None: timed out)
         self.create_timer(0.1, self.tick)
 
