@@ -23,7 +23,6 @@ import time
 from pathlib import Path
 
 import torch
-import yaml
 
 from dope_training.evaluate import evaluate, write_report
 from dope_training.infer import DopeModel
@@ -81,7 +80,7 @@ def main() -> None:
     demo = DemoSettings.small()
     fields = {"size": demo.size, "epochs": demo.epochs, **parse_options(demo.train_options())} \
         if args.recipe == "demo" else {}
-    fields |= {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.train)}
+    fields |= parse_options(args.train)
     out = work / "runs" / args.tag
     cfg = TrainConfig(data=[str(data)], object=TARGET, out=str(out), device="cpu", **fields)
     t0 = time.monotonic()

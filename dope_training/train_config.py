@@ -61,11 +61,12 @@ class TrainConfig(BaseModel):
         return self
 
 
-def parse_options(text: str) -> dict:
+def parse_options(text: str | list[str]) -> dict:
     """TrainConfig fields from "key=value key=value" (values parsed as YAML, e.g. "focal_px=330
-    symmetry_axis=[0,0,1]") as a dict; one clear error for an item without "=" or with bad YAML."""
+    symmetry_axis=[0,0,1]"), or from a list of "key=value" items (a value may then hold spaces), as a dict;
+    one clear error for an item without "=" or with bad YAML."""
     options = {}
-    for item in text.split():
+    for item in text.split() if isinstance(text, str) else text:
         key, sep, value = item.partition("=")
         if not sep:
             raise PegasusError(f"training option {item!r} is not key=value")
