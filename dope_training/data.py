@@ -85,7 +85,7 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
     if not split_dir.is_dir():
         raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset")
     boxes = model_boxes(root)
-    wanted = set(resolve_objects(objects, boxes, object_names(split_dir), str(root)))
+    wanted = set(resolve_objects(objects, boxes, object_names(root), str(root)))
     cuboids = {k: cuboid_points(*boxes[k]) for k in wanted}
     samples = []
     for frame in bop_frames(split_dir):

@@ -8,11 +8,16 @@ estimate at most once); an instance with no estimate left is a miss (infinite er
 threshold); estimates left over are false positives. Pass rates at 2, 5 and 10 cm; AUC: the area under the
 pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0). With depth refinement
 (``refine``) the refined poses are matched and scored the same way, a rejected refinement being a miss.
+The report's ``estimates`` are the poses output for the evaluated images in BOP19's results form (scene_id,
+im_id, obj_id, score, R row-major, t in mm, time: the image's inference seconds): the refined poses the
+refinement accepted with ``refine``, else the PnP poses. Errors are computed over the vertices of the
+dataset's ``models_eval`` (BOP's evaluation models), or of ``models`` without them.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,8 +53,10 @@ def auc(errors: np.ndarray, max_threshold: float = AUC_MAX_M) -> float:
 
 
 def model_points(root: Path, obj_id: int) -> np.ndarray:
-    """[N, 3] metres: the vertices of the BOP model (mm), at most MAX_MODEL_POINTS (evenly strided)."""
-    path = root / "models" / f"obj_{obj_id:06d}.ply"
+    """[N, 3] metres: the vertices of the BOP evaluation model (models_eval, else models; mm), at most
+    MAX_MODEL_POINTS (evenly strided)."""
+    path = next((p for p in (root / f / f"obj_{obj_id:06d}.ply" for f in ("models_eval", "models")) if p.is_file()),
+                root / "models" / f"obj_{obj_id:06d}.ply")
     if not path.is_file():
         raise PegasusError(f"{path}: the model of obj_id {obj_id} is missing")
     vertices = np.asarray(trimesh.load(path, process=False).vertices, dtype=np.float64) / 1000.0
@@ -112,7 +119,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
                            f"{obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
     symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous") or obj.symmetric)
     points = model_points(root, obj.obj_id)
-    matches, refined_errors, false_positives, rejected, images_seen = [], [], 0, 0, 0
+    matches, refined_errors, false_positives, rejected, images_seen, results = [], [], 0, 0, 0, []
     frames = [f for f in bop_frames(root / split, max_images)
               if any(i.obj_id == obj.obj_id for i in f.instances)]
     for frame in tqdm(frames, desc="eval", unit="img"):
@@ -124,8 +131,16 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         if image is None:
             raise PegasusError(f"{frame.image}: cannot read the image")
         depth = frame.read_depth() if refine else None
+        started = time.perf_counter()
         estimates = model.estimate(image[..., ::-1].copy(), frame.K, min_score=min_score, depth_m=depth)
+        seconds = time.perf_counter() - started
         images_seen += 1
+        for e in estimates:
+            T = e.refined if refine else e.T
+            if T is not None:
+                results.append({"scene_id": int(frame.scene.name), "im_id": frame.im_id, "obj_id": obj.obj_id,
+                                "score": float(e.score), "R": T[:3, :3].ravel().tolist(),
+                                "t": (T[:3, 3] * 1000.0).tolist(), "time": seconds})
         solved = [e for e in estimates if e.T is not None]  # DOPE + PnP alone
         pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in solved])
         false_positives += extra
@@ -149,7 +164,8 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
               "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
                                 "add_m": m.add_m if np.isfinite(m.add_m) else None,
                                 "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
-                               for m in matches]}
+                               for m in matches],
+              "estimates": results}
     if refine:
         r_add, r_adds = (np.array([e[k] for e in refined_errors], float).reshape(-1) for k in (0, 1))
         report["refined"] = {"rejected": rejected, "misses": int((~np.isfinite(r_add)).sum()),

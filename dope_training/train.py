@@ -70,7 +70,7 @@ def load_training_samples(cfg: TrainConfig):
         root = Path(entry)
         if (root / "models" / "models_info.json").is_file():
             boxes = model_boxes(root)
-            names = object_names(root / cfg.split) if (root / cfg.split).is_dir() else {}
+            names = object_names(root)
             obj_id = resolve_objects([cfg.object], boxes, names, str(root))[0]
             info = read_json(root / "models" / "models_info.json")[str(obj_id)]
             name = next((n for n, i in names.items() if i == obj_id), str(obj_id))

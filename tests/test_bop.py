@@ -1,6 +1,11 @@
-"""BOP pieces: units, model PLY layout, models_info and gt_info as bop_toolkit defines them."""
+"""BOP pieces: units, model PLY layout, evaluation models, models_info, gt_info, test targets and the BOP19
+results file as bop_toolkit defines them."""
+
+import json
 
 import numpy as np
+import open3d as o3d
+import pytest
 import trimesh
 from plyfile import PlyData
 
@@ -9,10 +14,14 @@ from pegasus_gen.dataset.bop import (
     camera_entry,
     depth_to_png_values,
     gt_info_entry,
-    models_info_entry,
     pose_entry,
-    write_model_ply,
+    read_bop_results,
+    targets_bop19,
+    write_bop_results,
 )
+from pegasus_gen.dataset.models import EVAL_SPACING, eval_model, models_info_entry, write_model_ply
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.render.raycast import MeshRaycaster
 
 
 def test_pose_and_camera_entries_are_in_millimetres_row_major():
@@ -33,17 +42,36 @@ def test_depth_png_values_follow_depth_scale():
     assert values.dtype == np.uint16 and values.tolist() == [[0, 12345, 65535]]  # 10 m clips
 
 
-def test_model_ply_is_mm_with_vertex_indices(tmp_path):
+def test_model_ply_is_mm_with_normals_colours_and_vertex_indices(tmp_path):
     mesh = trimesh.creation.box((0.1, 0.06, 0.04))
+    colours = np.random.default_rng(0).integers(0, 256, (len(mesh.vertices), 3))
+    mesh.visual.vertex_colors = np.concatenate([colours, np.full((len(colours), 1), 255)], 1)
     path = write_model_ply(tmp_path / "obj_000001.ply", mesh)
     ply = PlyData.read(str(path))
-    assert [p.name for p in ply["vertex"].properties][:3] == ["x", "y", "z"]
+    assert [p.name for p in ply["vertex"].properties] == ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"]
     header = path.read_bytes().split(b"end_header")[0].decode()
     assert "property float x" in header and "property list uchar int vertex_indices" in header
     v = np.stack([ply["vertex"][k] for k in "xyz"], 1)
     assert np.allclose(np.ptp(v, 0), [100, 60, 40], atol=1e-3)
+    assert np.array_equal(np.stack([ply["vertex"][k] for k in ("red", "green", "blue")], 1), colours)
+    normals = np.stack([ply["vertex"][k] for k in ("nx", "ny", "nz")], 1)
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-5) and (np.sum(normals * v, 1) > 0).all()
     faces = np.stack(ply["face"]["vertex_indices"])
     assert faces.shape == (len(mesh.faces), 3) and np.array_equal(faces, mesh.faces)
+
+
+def test_eval_model_resamples_the_surface_evenly_and_stays_closed():
+    """A box of 12 triangles and a finely tessellated ring both come out closed, with vertices on the
+    surface about EVAL_SPACING apart, and the same volume."""
+    for mesh in (trimesh.creation.box((0.12, 0.05, 0.03)), trimesh.creation.annulus(0.02, 0.035, 0.03, sections=200)):
+        resampled = eval_model(mesh)
+        assert resampled.is_watertight and resampled.volume > 0  # closed, outward faces
+        assert abs(resampled.volume / mesh.volume - 1) < 0.02
+        distance = MeshRaycaster(mesh).scene.compute_distance(
+            o3d.core.Tensor(np.asarray(resampled.vertices, np.float32))).numpy()
+        assert np.median(distance) < 0.1 * EVAL_SPACING and distance.max() < 0.5 * EVAL_SPACING
+        edges = resampled.edges_unique_length
+        assert 0.6 * EVAL_SPACING < np.median(edges) < 1.2 * EVAL_SPACING and edges.max() < 2 * EVAL_SPACING
 
 
 def test_models_info_diameter_is_the_largest_vertex_distance():
@@ -72,3 +100,39 @@ def test_gt_info_counts_outside_pixels_and_occlusion():
     assert info["bbox_visib"] == [0, 20, 15, 10]
     occluded = gt_info_entry(canvas, np.full((H, W), 0.5), K)[0]
     assert occluded["px_count_visib"] == 0 and occluded["bbox_visib"] == [-1, -1, -1, -1]
+
+
+def test_bop19_results_file_has_the_toolkits_layout_and_reads_back(tmp_path):
+    rng = np.random.default_rng(3)
+    rows = []
+    for n in range(4):
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        rows.append({"scene_id": n // 2, "im_id": 7 + n // 2, "obj_id": 1 + n % 2, "score": float(rng.uniform()),
+                     "R": R.ravel().tolist(), "t": (rng.normal(size=3) * 300).tolist(), "time": 0.25 + n // 2})
+    path = write_bop_results(tmp_path / "mine_lm-test.csv", rows)
+    lines = path.read_text().splitlines()
+    assert lines[0] == "scene_id,im_id,obj_id,score,R,t,time" and len(lines) == 5
+    fields = lines[1].split(",")
+    assert len(fields) == 7 and len(fields[4].split(" ")) == 9 and len(fields[5].split(" ")) == 3
+    back = read_bop_results(path)
+    for row, read in zip(rows, back):
+        assert (read["scene_id"], read["im_id"], read["obj_id"]) == (row["scene_id"], row["im_id"], row["obj_id"])
+        assert read["score"] == row["score"] and read["time"] == row["time"]
+        assert np.array_equal(read["R"], np.reshape(row["R"], (3, 3))) and np.array_equal(read["t"], row["t"])
+    (tmp_path / "bad.csv").write_text("scene,im\n1,2\n")
+    with pytest.raises(PegasusError, match="not a BOP19 results file"):
+        read_bop_results(tmp_path / "bad.csv")
+
+
+def test_test_targets_count_the_instances_seen_at_least_ten_percent(tmp_path):
+    visib = {0: {"0": [(1, 0.5), (1, 0.09), (2, 0.1)], "4": [(2, 0.0)]}, 3: {"1": [(1, 0.95), (1, 0.3), (3, 0.2)]}}
+    for scene_id, frames in visib.items():
+        scene = tmp_path / f"{scene_id:06d}"
+        scene.mkdir()
+        (scene / "scene_gt.json").write_text(json.dumps(
+            {im: [{"obj_id": o, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 500]} for o, _ in inst]
+             for im, inst in frames.items()}))
+        (scene / "scene_gt_info.json").write_text(json.dumps(
+            {im: [{"visib_fract": v} for _, v in inst] for im, inst in frames.items()}))
+    expected = [(0, 0, 1, 1), (0, 0, 2, 1), (3, 1, 1, 2), (3, 1, 3, 1)]
+    assert targets_bop19(tmp_path) == [dict(zip(("scene_id", "im_id", "obj_id", "inst_count"), e)) for e in expected]

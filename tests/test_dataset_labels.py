@@ -1,20 +1,22 @@
-"""The dataset around the images: validate, view, scene_gt_coco, DOPE json, and gt_info recomputed here
-from the written files by the BOP definitions."""
+"""The dataset around the images: validate, view, COCO read and scored by pycocotools, and DOPE json read as
+DOPE's loader reads it. (Masks and gt_info against the BOP definitions: test_bop_labels.py.)"""
 
+import contextlib
+import io
 import json
 import shutil
 
 import cv2
 import numpy as np
 import pytest
+from pycocotools.coco import COCO
+from pycocotools.cocoeval import COCOeval
 
 from pegasus_gen.cli.main import main
-from pegasus_gen.dataset.bop import ray_lengths
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 from pegasus_gen.dataset.validate import validate
 from pegasus_gen.dataset.view import view
-from pegasus_gen.render.renderer import render
 
 W, H = 320, 240
 
@@ -24,6 +26,7 @@ def dataset(library, tmp_path_factory):
     out = tmp_path_factory.mktemp("ds") / "ds"
     cfg = load_config(None, [f"output={out}", f"library={library.root}", "scenes=1", "frames_per_scene=3",
                              f"camera.width={W}", f"camera.height={H}", "device=cpu", "dope_json=true",
+                             "image_format=png",
                              "environments=[wooden_table]",
                              "objects=[{asset: 1, count: [1, 1]}, {asset: 5, count: [1, 1]},"
                              " {asset: 7, count: [1, 1]}]"])
@@ -78,84 +81,89 @@ def test_validate_catches_a_wrong_pose_and_metres_for_millimetres(dataset, tmp_p
     assert "no train_pbr/ folder" in capsys.readouterr().err
 
 
-def test_gt_info_equals_a_recomputation_from_the_written_files(dataset, library):
-    """calc_gt_info's definitions applied here: the object alone rendered on the full 3x canvas (no window),
-    visibility from the written 16-bit depth and distances along the rays."""
+def coco_scores(coco_gt, iou_type):
+    """pycocotools' AP and AR (IoU 0.5:0.95, all areas) of the ground truth itself scored as detections."""
+    detections = [{**a, "score": 1.0} for a in coco_gt.dataset["annotations"]]
+    evaluation = COCOeval(coco_gt, coco_gt.loadRes(detections), iou_type)
+    with contextlib.redirect_stdout(io.StringIO()):
+        evaluation.evaluate()
+        evaluation.accumulate()
+        evaluation.summarize()
+    return evaluation.stats[0], evaluation.stats[8]
+
+
+def test_scene_gt_coco_is_what_bop_toolkit_writes_and_pycocotools_scores_it_perfectly(dataset):
     scene = dataset / "train_pbr" / "000000"
-    gt, cams, infos = (load(scene, n) for n in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json"))
-    for im_id, entries in gt.items():
-        cam = cams[im_id]
-        K = np.array(cam["cam_K"]).reshape(3, 3)
-        T_cam_world = pose(cam["cam_R_w2c"], cam["cam_t_w2c"])
-        depth_png = cv2.imread(str(scene / "depth" / f"{int(im_id):06d}.png"), cv2.IMREAD_UNCHANGED)
-        depth_m = depth_png * cam["depth_scale"] / 1000
-        K3 = K.copy()
-        K3[:2, 2] += [W, H]
-        for gt_idx, (entry, info) in enumerate(zip(entries, infos[im_id])):
-            T_world_obj = np.linalg.inv(T_cam_world) @ pose(entry["cam_R_m2c"], entry["cam_t_m2c"])
-            splats = library.get(entry["obj_id"]).splats.transformed(T_world_obj)
-            canvas = render(splats, K3, T_cam_world, 3 * W, 3 * H, device="cpu").depth
-            obj = canvas[H:2 * H, W:2 * W]
-            rays = ray_lengths(K, W, H)
-            visible = (obj > 0) & ((obj * rays - depth_m * rays <= 0.015) | (depth_m == 0))
-            ys, xs = np.nonzero(canvas > 0)
-            assert abs(info["px_count_all"] - len(xs)) <= 2
-            box = [xs.min() - W, ys.min() - H, np.ptp(xs) + 1, np.ptp(ys) + 1]
-            assert np.abs(np.array(info["bbox_obj"]) - box).max() <= 1
-            written = cv2.imread(str(scene / "mask_visib" / f"{int(im_id):06d}_{gt_idx:06d}.png"), 0) > 0
-            assert (written != visible).sum() <= max(2, 0.005 * visible.sum())  # depth PNG rounding at delta
-            assert abs(info["px_count_visib"] - visible.sum()) <= max(2, 0.005 * visible.sum())
-            assert info["visib_fract"] == pytest.approx(info["px_count_visib"] / info["px_count_all"])
+    gt, infos = load(scene, "scene_gt.json"), load(scene, "scene_gt_info.json")
+    for name, box_key in (("scene_gt_coco.json", "mask"), ("scene_gt_coco_modal.json", "mask_visib")):
+        with contextlib.redirect_stdout(io.StringIO()):
+            coco = COCO(str(scene / name))
+        assert [(c["id"], c["name"]) for c in coco.dataset["categories"]] == [(1, "1"), (5, "5"), (7, "7")]
+        assert [im["file_name"] for im in coco.dataset["images"]] == [f"rgb/{i:06d}.png" for i in range(3)]
+        annotations = coco.dataset["annotations"]
+        assert [a["id"] for a in annotations] == list(range(1, len(annotations) + 1))
+        written = [(im_id, gt_idx) for im_id in sorted(gt, key=int) for gt_idx in range(len(gt[im_id]))
+                   if infos[im_id][gt_idx]["px_count_visib"] > 0]
+        assert len(annotations) == len(written)
+        for ann, (im_id, gt_idx) in zip(annotations, written):
+            mask_name = f"{int(im_id):06d}_{gt_idx:06d}.png"
+            visib = cv2.imread(str(scene / "mask_visib" / mask_name), 0) > 0
+            boxed = cv2.imread(str(scene / box_key / mask_name), 0) > 0
+            ys, xs = np.nonzero(boxed)
+            assert np.array_equal(coco.annToMask(ann) > 0, visib) and ann["area"] == visib.sum()
+            assert ann["bbox"] == [xs.min(), ys.min(), np.ptp(xs) + 1, np.ptp(ys) + 1]
+            assert ann["category_id"] == gt[im_id][gt_idx]["obj_id"] and ann["image_id"] == int(im_id)
+            assert ann["ignore"] == (infos[im_id][gt_idx]["visib_fract"] < 0.1)
+        for iou_type in ("bbox", "segm"):
+            assert coco_scores(coco, iou_type) == (1.0, 1.0)
 
 
-def rle_decode(rle):
-    h, w = rle["size"]
-    flat = np.zeros(h * w, bool)
-    pos, value = 0, False
-    for count in rle["counts"]:
-        flat[pos:pos + count] = value
-        pos, value = pos + count, not value
-    assert pos == h * w
-    return flat.reshape((h, w), order="F")
+def read_dope_folder(folder):
+    """What DOPE's training loader reads, written from its contract: every png with a json of the same name,
+    each object's class and its 9 projected cuboid points (8 corners, then the centroid)."""
+    samples = []
+    for image in sorted(folder.glob("*.png")):
+        doc = json.loads(image.with_suffix(".json").read_text())
+        samples.append((image, [(o["class"], np.array(o["projected_cuboid"], float)) for o in doc["objects"]]))
+    return samples
 
 
-def test_scene_gt_coco_holds_the_visible_masks(dataset):
+def test_dope_json_is_what_the_dope_loader_reads_and_matches_the_pose_and_the_model_box(dataset):
     scene = dataset / "train_pbr" / "000000"
-    coco, gt, infos = (load(scene, n) for n in ("scene_gt_coco.json", "scene_gt.json", "scene_gt_info.json"))
-    assert {c["id"] for c in coco["categories"]} == {1, 5, 7}
-    assert [im["file_name"] for im in coco["images"]] == [f"rgb/{i:06d}.jpg" for i in range(3)]
-    per_image = {}
-    for ann in coco["annotations"]:
-        per_image.setdefault(ann["image_id"], []).append(ann)
-    for im_id, anns in per_image.items():
-        for gt_idx, ann in enumerate(anns):
-            visib = cv2.imread(str(scene / "mask_visib" / f"{im_id:06d}_{gt_idx:06d}.png"), 0) > 0
-            assert np.array_equal(rle_decode(ann["segmentation"]), visib)
-            assert ann["category_id"] == gt[str(im_id)][gt_idx]["obj_id"]
-            assert ann["bbox"] == infos[str(im_id)][gt_idx]["bbox_visib"] and ann["area"] == visib.sum()
-    assert len({a["id"] for a in coco["annotations"]}) == 9
-
-
-def test_dope_json_cuboid_matches_the_pose_and_the_model_box(dataset):
-    scene = dataset / "train_pbr" / "000000"
-    gt, cams = load(scene, "scene_gt.json"), load(scene, "scene_camera.json")
+    gt, cams, infos = load(scene, "scene_gt.json"), load(scene, "scene_camera.json"), load(scene, "scene_gt_info.json")
     info = load(dataset / "models", "models_info.json")
-    doc = load(scene / "rgb", "000001.json")
-    K = np.array(cams["1"]["cam_K"]).reshape(3, 3)
-    assert doc["camera_data"]["intrinsics"] == {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
-    for entry, obj in zip(gt["1"], doc["objects"]):
-        T = pose(entry["cam_R_m2c"], entry["cam_t_m2c"])
-        m = info[str(entry["obj_id"])]
-        lo = np.array([m["min_x"], m["min_y"], m["min_z"]]) / 1000
-        size = np.array([m["size_x"], m["size_y"], m["size_z"]]) / 1000
-        corner0 = lo + size * [1, 0, 1]  # (+x, -y, +z)
-        for point, uv in ((lo + size / 2, obj["projected_cuboid"][8]), (corner0, obj["projected_cuboid"][0])):
-            p = T[:3, :3] @ point + T[:3, 3]
-            np.testing.assert_allclose(uv, (K @ p)[:2] / p[2], atol=1e-6)
-        np.testing.assert_allclose(obj["location"], T[:3, 3] * 100, atol=1e-9)  # centimetres, as NDDS
-        x, y, z, w = obj["quaternion_xyzw"]
-        assert abs(np.dot([w, x, y, z], [w, x, y, z]) - 1) < 1e-9
-        assert np.isclose(1 - 2 * (y * y + z * z), T[0, 0], atol=1e-9)
+    samples = read_dope_folder(scene / "rgb")
+    assert len(samples) == 3
+    for image, objects in samples:
+        im_id = image.stem.lstrip("0") or "0"
+        doc = load(scene / "rgb", f"{image.stem}.json")
+        K = np.array(cams[im_id]["cam_K"]).reshape(3, 3)
+        assert doc["camera_data"]["intrinsics"] == {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
+        visible = [n for n, i in enumerate(infos[im_id]) if i["px_count_visib"] > 0]
+        assert [o["name"] for o in doc["objects"]] == [f"{info[str(gt[im_id][n]['obj_id'])]['name']}_{n:03d}"
+                                                       for n in visible]
+        assert [c for c, _ in objects] == [info[str(gt[im_id][n]["obj_id"])]["name"] for n in visible]
+        for n, obj, (_, cuboid) in zip(visible, doc["objects"], objects):
+            entry, gt_info = gt[im_id][n], infos[im_id][n]
+            T = pose(entry["cam_R_m2c"], entry["cam_t_m2c"])
+            m = info[str(entry["obj_id"])]
+            lo = np.array([m["min_x"], m["min_y"], m["min_z"]]) / 1000
+            size = np.array([m["size_x"], m["size_y"], m["size_z"]]) / 1000
+            corner0 = lo + size * [1, 0, 1]  # (+x, -y, +z)
+            assert cuboid.shape == (9, 2)
+            for point, uv in ((lo + size / 2, cuboid[8]), (corner0, cuboid[0])):
+                p = T[:3, :3] @ point + T[:3, 3]
+                np.testing.assert_allclose(uv, (K @ p)[:2] / p[2], atol=1e-6)
+            np.testing.assert_allclose(obj["location"], T[:3, 3] * 100, atol=1e-9)  # centimetres, as NDDS
+            x, y, z, w = obj["quaternion_xyzw"]
+            assert abs(np.dot([w, x, y, z], [w, x, y, z]) - 1) < 1e-9
+            assert np.isclose(1 - 2 * (y * y + z * z), T[0, 0], atol=1e-9)
+            bx, by, bw, bh = gt_info["bbox_visib"]
+            assert obj["bounding_box_minx_maxx_miny_maxy"] == [bx, bx + bw, by, by + bh]
+            assert (obj["px_count_all"], obj["px_count_visib"]) == (gt_info["px_count_all"], gt_info["px_count_visib"])
+            T_world_cam = np.linalg.inv(np.array(doc["camera_data"]["camera_view_matrix"]))
+            T_cam_obj = np.linalg.inv(T_world_cam) @ np.array(obj["local_to_world_matrix"])
+            np.testing.assert_allclose(T_cam_obj[:3, 3], obj["location"], atol=1e-6)  # both in cm
 
 
 def test_view_writes_overlays_and_a_gallery(dataset, tmp_path):
@@ -165,5 +173,5 @@ def test_view_writes_overlays_and_a_gallery(dataset, tmp_path):
     assert [p.name for p in overlays] == ["000000_000000.jpg", "000000_000001.jpg"]
     assert all(p.name in text for p in overlays)
     drawn = cv2.imread(str(overlays[0])).astype(int)
-    original = cv2.imread(str(dataset / "train_pbr" / "000000" / "rgb" / "000000.jpg")).astype(int)
+    original = cv2.imread(str(dataset / "train_pbr" / "000000" / "rgb" / "000000.png")).astype(int)
     assert (np.abs(drawn - original).sum(axis=2) > 60).mean() > 0.01  # contours and boxes were drawn

@@ -176,7 +176,7 @@ def test_static_scene_keeps_the_rest_poses_in_every_frame(library, tmp_path):
 def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
     from pegasus_gen.dataset.generate import object_depth_canvas
     from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
-    from pegasus_gen.render.renderer import render
+    from pegasus_gen.render.raycast import MeshRaycaster
 
     asset = library.get(7)
     T_world_obj = np.eye(4)
@@ -185,9 +185,9 @@ def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
     K = intrinsics_from_fov(W, H, 60)
     K_canvas = K.copy()
     K_canvas[:2, 2] += [W, H]
-    T_cam_world = look_at([0.0, -0.45, 0.35], [0, 0, 0])
-    placed = asset.splats.transformed(T_world_obj)
-    full = render(placed, K_canvas, T_cam_world, 3 * W, 3 * H, device="cpu").depth
-    window = object_depth_canvas(placed, asset.mesh, T_cam_world @ T_world_obj, K_canvas, T_cam_world, W, H, "cpu")
+    T_cam_obj = look_at([0.0, -0.45, 0.35], [0, 0, 0]) @ T_world_obj
+    model = MeshRaycaster(asset.surface)
+    full = model.depth(K_canvas, T_cam_obj, 3 * W, 3 * H)
+    window = object_depth_canvas(model, asset.surface.vertices, T_cam_obj, K_canvas, W, H)
     assert (full > 0).sum() > 200
-    np.testing.assert_allclose(window, full, atol=1e-5)
+    np.testing.assert_allclose(window, full, atol=1e-6)

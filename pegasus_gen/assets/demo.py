@@ -15,13 +15,14 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from pegasus_gen.assets.library import AssetLibrary, AssetManifest, DropRegion, save_asset
+from pegasus_gen.assets.surface import MAX_EDGE, with_colors
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.cloud import SplatCloud, concatenate
 from pegasus_gen.splats.from_mesh import mesh_to_splats
 from pegasus_gen.splats.procedural import plane, wood_texture
 from pegasus_gen.splats.surface import surface_splats
 
-DEMO_VERSION = 4
+DEMO_VERSION = 5
 OBJECT_SPACING = 0.0015  # m between splats on objects
 ENV_SPACING = 0.002
 TABLE_HEIGHT = 0.75  # m, table top above the room floor
@@ -83,10 +84,23 @@ def _lookup(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return image[row, col].astype(np.float64) / 255.0
 
 
-def frustum_splats(r_bottom: float, r_top: float, height: float, label: np.ndarray, lid: np.ndarray,
-                   bottom_rgb, rng: np.random.Generator, spacing: float = OBJECT_SPACING) -> SplatCloud:
-    """A closed truncated cone (cup or bowl), axis z, centred on its bounding box: label on the side,
-    lid texture on top, plain bottom."""
+def frustum_colors(points: np.ndarray, r_top: float, height: float, label: np.ndarray, lid: np.ndarray,
+                   bottom_rgb) -> np.ndarray:
+    """Colour [N, 3] in [0, 1] of points [N, 3] (m) on a frustum centred on its bounding box: the lid image
+    on the top (z = height / 2, the image spanning the top's diameter), ``bottom_rgb`` on the bottom, the
+    label around the side (its width once around from +x, its height from top to bottom)."""
+    x, y, z = np.asarray(points, dtype=np.float64).T
+    colors = _lookup(label, np.mod(np.arctan2(y, x), 2 * np.pi) / (2 * np.pi), (height / 2 - z) / height)
+    top, bottom = z >= height / 2 - 1e-9, z <= -height / 2 + 1e-9
+    colors[top] = _lookup(lid, 0.5 + x[top] / (2 * r_top), 0.5 - y[top] / (2 * r_top))
+    colors[bottom] = np.asarray(bottom_rgb, float)
+    return colors
+
+
+def frustum_splats(r_bottom: float, r_top: float, height: float, colors_of, rng: np.random.Generator,
+                   spacing: float = OBJECT_SPACING) -> SplatCloud:
+    """A closed truncated cone (cup or bowl), axis z, centred on its bounding box, coloured by ``colors_of``
+    (points [N, 3] -> rgb [N, 3], e.g. ``frustum_colors``)."""
     slope = (r_top - r_bottom) / height
     side_area = np.pi * (r_bottom + r_top) * np.hypot(height, r_top - r_bottom)
     n_side = int(side_area / spacing**2)
@@ -95,80 +109,108 @@ def frustum_splats(r_bottom: float, r_top: float, height: float, label: np.ndarr
     z = z[rng.uniform(0, r_top if r_top > r_bottom else r_bottom, len(z)) < r][:n_side]  # density ~ radius
     r = r_bottom + slope * (z + height / 2)
     a = rng.uniform(0, 2 * np.pi, len(z))
-    side = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
     side_n = np.stack([np.cos(a), np.sin(a), np.full(len(z), -slope)], 1)
-    side_n /= np.linalg.norm(side_n, axis=1, keepdims=True)
-    side_c = _lookup(label, a / (2 * np.pi), (height / 2 - z) / height)
-    parts = [(side, side_n, side_c)]
+    parts = [(np.stack([r * np.cos(a), r * np.sin(a), z], 1), side_n / np.linalg.norm(side_n, axis=1, keepdims=True))]
     for sign, radius in ((1.0, r_top), (-1.0, r_bottom)):
         n_cap = int(np.pi * radius**2 / spacing**2)
         rr = radius * np.sqrt(rng.uniform(0, 1, n_cap))
         aa = rng.uniform(0, 2 * np.pi, n_cap)
         pts = np.stack([rr * np.cos(aa), rr * np.sin(aa), np.full(n_cap, sign * height / 2)], 1)
-        normal = np.tile([0.0, 0.0, sign], (n_cap, 1))
-        if sign > 0:
-            colors = _lookup(lid, 0.5 + pts[:, 0] / (2 * radius), 0.5 - pts[:, 1] / (2 * radius))
-        else:
-            colors = np.tile(np.asarray(bottom_rgb, float), (n_cap, 1))
-        parts.append((pts, normal, colors))
-    pts, normals, colors = (np.concatenate(p) for p in zip(*parts))
-    return surface_splats(pts, normals, colors, spacing, rng, sh_degree=1, view_dependence=0.03)
+        parts.append((pts, np.tile([0.0, 0.0, sign], (n_cap, 1))))
+    pts, normals = (np.concatenate(p) for p in zip(*parts))
+    return surface_splats(pts, normals, colors_of(pts), spacing, rng, sh_degree=1, view_dependence=0.03)
 
 
 def frustum_mesh(r_bottom: float, r_top: float, height: float, sections: int = 48) -> trimesh.Trimesh:
+    """The frustum as a closed low-poly solid (the collision mesh)."""
     profile = np.array([[0.0, -height / 2], [r_bottom, -height / 2], [r_top, height / 2], [0.0, height / 2]])
     return trimesh.creation.revolve(profile, sections=sections)
 
 
+def frustum_surface(r_bottom: float, r_top: float, height: float, colors_of) -> trimesh.Trimesh:
+    """The frustum as a closed surface model: vertices at most ``MAX_EDGE`` apart along the profile and around
+    the axis, vertex colours from ``colors_of``."""
+    corners = np.array([[0.0, -height / 2], [r_bottom, -height / 2], [r_top, height / 2], [0.0, height / 2]])
+    steps = [np.linspace(0, 1, int(np.ceil(np.linalg.norm(b - a) / MAX_EDGE)), endpoint=False)
+             for a, b in zip(corners[:-1], corners[1:])]
+    profile = np.concatenate([a + (b - a) * t[:, None] for a, b, t in zip(corners[:-1], corners[1:], steps)]
+                             + [corners[-1:]])
+    mesh = trimesh.creation.revolve(profile, sections=int(np.ceil(2 * np.pi * max(r_bottom, r_top) / MAX_EDGE)))
+    return with_colors(mesh, colors_of(mesh.vertices))
+
+
+def box_colors(points: np.ndarray, size, image: np.ndarray, side_rgb) -> np.ndarray:
+    """Colour [N, 3] of points [N, 3] (m) on a box of ``size`` centred at the origin: ``image`` spans each
+    face normal to y and z (u along the face's first other axis, v down its second), ``side_rgb`` on the
+    faces normal to x."""
+    points, size = np.asarray(points, dtype=np.float64), np.asarray(size, dtype=np.float64)
+    axis = np.argmax(np.abs(points) / size, axis=1)
+    colors = np.tile(np.asarray(side_rgb, float), (len(points), 1))
+    for a in (1, 2):
+        on, (d0, d1) = axis == a, [i for i in range(3) if i != a]
+        colors[on] = _lookup(image, points[on, d0] / size[d0] + 0.5, 0.5 - points[on, d1] / size[d1])
+    return colors
+
+
 def snack_box(rng: np.random.Generator):
-    """(splats, mesh, name, obj_id): a printed cardboard box."""
+    """(splats, mesh, surface, name, obj_id): a printed cardboard box."""
     size = (0.16, 0.10, 0.05)
     img = np.full((300, 480, 3), (250, 210, 60), np.uint8)
     cv2.rectangle(img, (0, 200), (480, 300), (200, 40, 40), -1)
     cv2.putText(img, "CRACKERS", (30, 140), cv2.FONT_HERSHEY_DUPLEX, 2.6, (120, 30, 20), 6, cv2.LINE_AA)
     cv2.putText(img, "whole grain", (150, 265), cv2.FONT_HERSHEY_SIMPLEX, 1.2, (255, 255, 255), 3, cv2.LINE_AA)
+    side = (0.98, 0.82, 0.24)
     mesh = trimesh.creation.box(size)
     splat_parts = []
-    for face, (axis, sign) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1)]):
+    for axis, sign in [(0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1)]:
         dims = [i for i in range(3) if i != axis]
         count = int(size[dims[0]] * size[dims[1]] / OBJECT_SPACING**2)
         pts = rng.uniform(-0.5, 0.5, (count, 3)) * size
         pts[:, axis] = sign * size[axis] / 2
         normal = np.zeros((count, 3))
         normal[:, axis] = sign
-        u = pts[:, dims[0]] / size[dims[0]] + 0.5
-        v = 0.5 - pts[:, dims[1]] / size[dims[1]]
-        colors = _lookup(img, u, v) if axis != 0 else np.tile([0.98, 0.82, 0.24], (count, 1))
-        splat_parts.append(surface_splats(pts, normal, colors, OBJECT_SPACING, rng, sh_degree=1,
-                                          view_dependence=0.02))
-    return concatenate(splat_parts), mesh, "snack_box", 7
+        splat_parts.append(surface_splats(pts, normal, box_colors(pts, size, img, side), OBJECT_SPACING, rng,
+                                          sh_degree=1, view_dependence=0.02))
+    vertices, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, MAX_EDGE, max_iter=20)
+    surface = with_colors(trimesh.Trimesh(vertices, faces), box_colors(vertices, size, img, side))
+    return concatenate(splat_parts), mesh, surface, "snack_box", 7
 
 
 def drink_can(rng: np.random.Generator):
-    """(splats, mesh, name, obj_id): an aluminium can with a printed label and a metallic sheen."""
+    """(splats, mesh, surface, name, obj_id): an aluminium can with a printed label and a metallic sheen."""
     label = label_texture((20, 120, 60), (230, 230, 230), (250, 250, 250), "FIZZ", "LIME SODA", rng)
     lid = np.full((256, 256, 3), 190, np.uint8)
     cv2.circle(lid, (128, 128), 100, (150, 150, 155), 6, cv2.LINE_AA)
     cv2.ellipse(lid, (128, 90), (30, 14), 0, 0, 360, (120, 120, 125), -1, cv2.LINE_AA)
-    splats = frustum_splats(0.033, 0.033, 0.122, label, lid, (0.7, 0.7, 0.72), rng)
+    r, h = 0.033, 0.122
+
+    def colors_of(points):
+        return frustum_colors(points, r, h, label, lid, (0.7, 0.7, 0.72))
+
+    splats = frustum_splats(r, r, h, colors_of, rng)
     splats = splats.replace(sh=splats.sh * np.r_[1.0, 3.0, 3.0, 3.0][None, :, None])  # shinier than paper
-    return splats, frustum_mesh(0.033, 0.033, 0.122), "drink_can", 8
+    return splats, frustum_mesh(r, r, h), frustum_surface(r, r, h, colors_of), "drink_can", 8
 
 
 def demo_objects(rng: np.random.Generator):
-    """Yields (splats, mesh, manifest) for each demo object."""
+    """Yields (splats, mesh, surface, manifest) for each demo object."""
     for name, obj_id, (rb, rt, h), (bg, band, text), brand, flavour in CUPS:
         label = label_texture(bg, band, text, brand, flavour, rng)
         lid = lid_texture(bg, band, text, brand)
-        splats = frustum_splats(rb, rt, h, label, lid, (0.95, 0.95, 0.93), rng)
+
+        def colors_of(points, rt=rt, h=h, label=label, lid=lid):
+            return frustum_colors(points, rt, h, label, lid, (0.95, 0.95, 0.93))
+
+        splats = frustum_splats(rb, rt, h, colors_of, rng)
         # the printed label breaks the rotational symmetry of the shape: no symmetries declared
         manifest = AssetManifest(name=name, kind="object", obj_id=obj_id, mass=0.08 + 0.4 * h * rt,
                                  geometry={"source": "procedural frustum", "demo_version": DEMO_VERSION})
-        yield splats, frustum_mesh(rb, rt, h), manifest
+        yield splats, frustum_mesh(rb, rt, h), frustum_surface(rb, rt, h, colors_of), manifest
     for make in (snack_box, drink_can):
-        splats, mesh, name, obj_id = make(rng)
-        yield splats, mesh, AssetManifest(name=name, kind="object", obj_id=obj_id, mass=0.15 if obj_id == 7 else 0.35,
-                                          geometry={"source": "procedural", "demo_version": DEMO_VERSION})
+        splats, mesh, surface, name, obj_id = make(rng)
+        yield splats, mesh, surface, AssetManifest(
+            name=name, kind="object", obj_id=obj_id, mass=0.15 if obj_id == 7 else 0.35,
+            geometry={"source": "procedural", "demo_version": DEMO_VERSION})
 
 
 def _clutter(rng: np.random.Generator, positions) -> tuple[list[SplatCloud], list[trimesh.Trimesh]]:
@@ -300,8 +342,8 @@ def build_demo_library(library: AssetLibrary, seed: int = 0, force: bool = False
     """
     rng = np.random.default_rng(seed)
     names = []
-    items = [*demo_objects(rng), *demo_environments(rng)]
-    for splats, mesh, manifest in tqdm(items, desc="demo assets", unit="asset"):
+    items = [*demo_objects(rng), *((splats, mesh, None, manifest) for splats, mesh, manifest in demo_environments(rng))]
+    for splats, mesh, surface, manifest in tqdm(items, desc="demo assets", unit="asset"):
         manifest.geometry["seed"] = seed
         names.append(manifest.name)
         path = library.root / manifest.name
@@ -311,5 +353,5 @@ def build_demo_library(library: AssetLibrary, seed: int = 0, force: bool = False
                     continue
             except PegasusError:
                 pass  # broken: rebuild
-        save_asset(path, manifest, splats, mesh, overwrite=True)
+        save_asset(path, manifest, splats, mesh, surface, overwrite=True)
     return names

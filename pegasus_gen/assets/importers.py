@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from pegasus_gen.assets.collision import MeshParams, splats_to_mesh
 from pegasus_gen.assets.library import Asset, AssetLibrary, AssetManifest, DropRegion, save_asset
+from pegasus_gen.assets.surface import mesh_surface, splat_surface
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.cloud import SplatCloud, is_rigid
 from pegasus_gen.splats.from_mesh import DEFAULT_SPACING, load_mesh, mesh_to_splats
@@ -90,7 +91,10 @@ def environment_mesh(cloud: SplatCloud, on_plane: np.ndarray, params: MeshParams
 
 
 def _finish(cloud: SplatCloud, mesh: trimesh.Trimesh | None, name: str, kind: str, obj_id: int | None,
-            library: AssetLibrary, rng: np.random.Generator, params: MeshParams, overwrite: bool, **fields) -> Asset:
+            library: AssetLibrary, rng: np.random.Generator, params: MeshParams, overwrite: bool,
+            surface: trimesh.Trimesh | None = None, **fields) -> Asset:
+    """Conventions applied and the asset saved: an environment levelled on its support plane, an object centred
+    on its collision mesh's bounding box, with its ``surface`` (reconstructed from the splats when None)."""
     if kind == "environment":
         T, on_plane = support_plane_alignment(cloud.means, rng)
         cloud = cloud.transformed(T)
@@ -108,10 +112,11 @@ def _finish(cloud: SplatCloud, mesh: trimesh.Trimesh | None, name: str, kind: st
         T[:3, 3] = -centre
         cloud = cloud.transformed(T)
         mesh = mesh.copy().apply_translation(-centre)
+        surface = splat_surface(cloud) if surface is None else surface.copy().apply_translation(-centre)
         manifest = AssetManifest(name=name, kind=kind, obj_id=obj_id, **fields)
     else:
         raise PegasusError(f"kind must be 'object' or 'environment', got {kind!r}")
-    return save_asset(library.root / name, manifest, cloud, mesh, overwrite=overwrite)
+    return save_asset(library.root / name, manifest, cloud, mesh, surface, overwrite=overwrite)
 
 
 def _check_placement(scale: float, transform) -> np.ndarray:
@@ -155,4 +160,5 @@ def import_mesh(path: str | os.PathLike, name: str, kind: str, library: AssetLib
     cloud = mesh_to_splats(mesh, rng, spacing=spacing)
     collision = mesh.copy()
     collision.merge_vertices(merge_tex=True, merge_norm=True)  # OBJ/STL seams split vertices
-    return _finish(cloud, collision, name, kind, obj_id, library, rng, params, overwrite, **fields)
+    surface = mesh_surface(mesh) if kind == "object" else None
+    return _finish(cloud, collision, name, kind, obj_id, library, rng, params, overwrite, surface, **fields)

@@ -5,6 +5,7 @@ An asset is a directory::
     NAME/asset.json      manifest (AssetManifest)
     NAME/splats.ply      3DGS splats in the asset frame (object frame / world frame of an environment)
     NAME/collision.obj   collision mesh in the same frame (metres)
+    NAME/surface.ply     objects: the detailed surface with vertex colours (metres; the BOP model)
     NAME/model.urdf      URDF whose link frame is the asset frame; inertial origin = true centre of mass
 
 A library is a directory of assets, looked up by name or obj_id. Its default location is
@@ -36,6 +37,7 @@ SPLATS = "splats.ply"
 COLLISION = "collision.obj"
 CONVEX_PARTS = "collision_convex.obj"  # concave objects: V-HACD parts used by the URDF's collision
 URDF = "model.urdf"
+SURFACE = "surface.ply"
 
 
 class ContinuousSymmetry(BaseModel):
@@ -102,12 +104,13 @@ class AssetManifest(BaseModel):
 
 @dataclass
 class Asset:
-    """A loaded asset: manifest, splats and collision mesh, all in the asset frame."""
+    """A loaded asset: manifest, splats, collision mesh and (objects) surface model, all in the asset frame."""
 
     path: Path
     manifest: AssetManifest
     splats: SplatCloud
     mesh: trimesh.Trimesh
+    surface: trimesh.Trimesh | None = None  # objects: fine mesh with vertex colours (assets.surface)
 
     @property
     def name(self) -> str:
@@ -154,7 +157,16 @@ def load_asset(path: str | os.PathLike) -> Asset:
         raise PegasusError(f"{path / COLLISION}: cannot read mesh ({exc})") from None
     if len(mesh.faces) == 0:
         raise PegasusError(f"{path / COLLISION}: the collision mesh has no triangles")
-    return Asset(path, manifest, splats, mesh)
+    surface = None
+    if manifest.kind == "object":
+        if not (path / SURFACE).is_file():
+            raise PegasusError(f"{path / SURFACE}: missing (an object made by an older version: import or build "
+                               "it again)")
+        try:
+            surface = trimesh.load(path / SURFACE, force="mesh", process=False)
+        except Exception as exc:
+            raise PegasusError(f"{path / SURFACE}: cannot read mesh ({exc})") from None
+    return Asset(path, manifest, splats, mesh, surface)
 
 
 def mass_properties(mesh: trimesh.Trimesh, mass: float) -> tuple[np.ndarray, np.ndarray]:
@@ -197,9 +209,10 @@ def urdf_text(manifest: AssetManifest, mesh: trimesh.Trimesh, collision_file: st
 
 
 def save_asset(path: str | os.PathLike, manifest: AssetManifest, splats: SplatCloud,
-               mesh: trimesh.Trimesh, overwrite: bool = False) -> Asset:
+               mesh: trimesh.Trimesh, surface: trimesh.Trimesh | None = None, overwrite: bool = False) -> Asset:
     """Write an asset directory; it appears complete or not at all (built beside it, then renamed).
 
+    An object needs its ``surface`` model (vertex-coloured mesh, same frame; environments have none).
     Concave objects also get their V-HACD convex parts, which the URDF uses for collision.
     """
     path = Path(path)
@@ -207,12 +220,16 @@ def save_asset(path: str | os.PathLike, manifest: AssetManifest, splats: SplatCl
         raise PegasusError(f"{path}: already exists (pass overwrite to replace it)")
     if manifest.kind == "object":
         mass_properties(mesh, manifest.mass)  # a closed mesh is needed: check before writing anything
+        if surface is None or len(surface.faces) == 0:
+            raise PegasusError(f"{manifest.name}: an object asset needs a surface model")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}."))
     try:
         (tmp / MANIFEST).write_text(manifest.model_dump_json(indent=2) + "\n")
         write_ply(tmp / SPLATS, splats)
         mesh.export(tmp / COLLISION)
+        if surface is not None:
+            surface.export(tmp / SURFACE)
         collision_file = COLLISION
         if manifest.kind == "object" and is_concave(mesh):
             convex_decomposition(mesh, tmp / CONVEX_PARTS)

@@ -77,12 +77,16 @@ def cmd_infer(args) -> int:
 def cmd_eval(args) -> int:
     from dope_training.evaluate import evaluate, write_report
     from dope_training.infer import DopeModel
+    from pegasus_gen.dataset.bop import write_bop_results
 
     model = DopeModel(args.model, device=args.device)
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
                       min_score=args.min_score, refine=args.depth)
     out = args.out if args.out is not None else Path(args.model).parent / f"eval_{Path(args.data).name}_{args.split}"
     json_path, png = write_report(report, out)
+    if args.bop_results:
+        path = write_bop_results(args.bop_results, report["estimates"])
+        print(f"BOP19 results ({len(report['estimates'])} estimates): {path}")
     r = report["result"]
     print(f"{report['object']['name']}: {report['instances']} instances in {report['images']} images, "
           f"{report['misses']} missed, {report['false_positives']} false positives")
@@ -138,4 +142,7 @@ def add_commands(sub) -> None:
     p.add_argument("--max-images", type=int, help="per scene")
     p.add_argument("--depth", action="store_true", help="also refine every estimate with the frame's depth image")
     p.add_argument("--out", help="report folder (default: beside the model)")
+    p.add_argument("--bop-results", metavar="CSV", help="also write every estimate as a BOP19 results file "
+                   "(bop_toolkit's eval_bop19_pose.py scores it): with --depth the refined poses the refinement "
+                   "accepted, else the PnP poses")
     p.set_defaults(func=cmd_eval)

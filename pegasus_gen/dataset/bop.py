@@ -1,5 +1,5 @@
-"""BOP format (bop_toolkit's definitions), written and read: poses and cameras in mm, model PLYs, models_info,
-gt_info; and the frames of a BOP split read back as arrays.
+"""BOP format (bop_toolkit's definitions), written and read: poses and cameras in mm, gt_info, test targets;
+and the frames of a BOP split read back as arrays. (Models: ``dataset.models``; COCO: ``dataset.coco``.)
 
 Inside the code poses are metres; every function here converts to and from BOP's millimetres at the files.
 """
@@ -12,7 +12,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import trimesh
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import read_json, write_atomic
@@ -36,55 +35,6 @@ def camera_entry(K: np.ndarray, T_cam_world: np.ndarray, depth_scale: float) -> 
 def depth_to_png_values(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
     """[H, W] z-depth in metres -> uint16 such that value * depth_scale = mm (clipped to 65535)."""
     return np.clip(np.round(depth_m * 1000.0 / depth_scale), 0, 65535).astype(np.uint16)
-
-
-def write_model_ply(path: str | os.PathLike, mesh: trimesh.Trimesh) -> Path:
-    """Binary PLY of ``mesh`` in millimetres: vertices (float x y z nx ny nz), faces ``vertex_indices``."""
-    vertices = np.asarray(mesh.vertices, dtype=np.float64) * 1000.0
-    normals = np.asarray(mesh.vertex_normals, dtype=np.float64)
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    header = "\n".join([
-        "ply", "format binary_little_endian 1.0", f"element vertex {len(vertices)}",
-        "property float x", "property float y", "property float z",
-        "property float nx", "property float ny", "property float nz",
-        f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]) + "\n"
-    vertex_table = np.concatenate([vertices, normals], axis=1).astype("<f4")
-    face_table = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
-    face_table["n"] = 3
-    face_table["v"] = faces
-
-    def write(f):
-        f.write(header.encode("ascii"))
-        f.write(vertex_table.tobytes())
-        f.write(face_table.tobytes())
-
-    return write_atomic(path, write)
-
-
-def models_info_entry(mesh: trimesh.Trimesh, symmetries_discrete=(), symmetries_continuous=()) -> dict:
-    """models_info entry in mm: diameter (largest vertex distance), min_x.., size_x.., symmetries.
-
-    symmetries_discrete: 4x4 transforms (16 numbers, translation in m); symmetries_continuous:
-    objects with ``axis`` and ``offset`` (m).
-    """
-    v = np.asarray(mesh.vertices, dtype=np.float64) * 1000.0
-    hull = np.asarray(trimesh.convex.convex_hull(v).vertices) if len(v) > 3 else v  # the diameter lies on the hull
-    diameter = float(np.max(np.linalg.norm(hull[:, None, :] - hull[None, :, :], axis=-1)))
-    lo, hi = v.min(0), v.max(0)
-    info = {"diameter": diameter, "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
-            "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]), "size_z": float(hi[2] - lo[2])}
-    if len(symmetries_discrete):
-        mats = []
-        for sym in symmetries_discrete:
-            m = np.asarray(sym, dtype=np.float64).reshape(4, 4).copy()
-            m[:3, 3] *= 1000.0
-            mats.append([float(x) for x in m.ravel()])
-        info["symmetries_discrete"] = mats
-    if len(symmetries_continuous):
-        info["symmetries_continuous"] = [
-            {"axis": [float(a) for a in s.axis], "offset": [float(o) * 1000.0 for o in s.offset]}
-            for s in symmetries_continuous]
-    return info
 
 
 def _bbox(mask: np.ndarray, dx: int = 0, dy: int = 0) -> list[int]:
@@ -126,35 +76,53 @@ def gt_info_entry(object_depth_canvas: np.ndarray, scene_depth: np.ndarray, K: n
     return info, mask, visible
 
 
-def coco_rle(mask: np.ndarray) -> dict:
-    """Uncompressed COCO run-length encoding of a binary mask [H, W]: run lengths over the column-major
-    pixel order, starting with a (possibly empty) run of zeros; {"counts": [...], "size": [H, W]}."""
-    flat = np.asarray(mask, dtype=bool).ravel(order="F")
-    changes = np.flatnonzero(flat[1:] != flat[:-1]) + 1
-    bounds = np.concatenate([[0], changes, [flat.size]])
-    counts = np.diff(bounds).tolist()
-    if flat.size and flat[0]:
-        counts = [0] + counts
-    return {"counts": [int(c) for c in counts], "size": [int(mask.shape[0]), int(mask.shape[1])]}
+def targets_bop19(split_dir: Path, min_visib_fract: float = 0.1) -> list[dict]:
+    """BOP19 test targets of a split, as bop_toolkit's enumerate_test_targets.py makes them: per scene, image
+    and object, {"scene_id", "im_id", "obj_id", "inst_count"} counting the instances at visib_fract >=
+    ``min_visib_fract``; objects with no such instance are not targets."""
+    targets = []
+    for scene in sorted(p for p in Path(split_dir).iterdir() if p.is_dir() and not p.name.startswith(".")):
+        gt, infos = read_json(scene / "scene_gt.json"), read_json(scene / "scene_gt_info.json")
+        for im_id in sorted(gt, key=int):
+            counts: dict[int, int] = {}
+            for entry, info in zip(gt[im_id], infos[im_id]):
+                if info["visib_fract"] >= min_visib_fract:
+                    counts[int(entry["obj_id"])] = counts.get(int(entry["obj_id"]), 0) + 1
+            targets += [{"scene_id": int(scene.name), "im_id": int(im_id), "obj_id": obj_id, "inst_count": n}
+                        for obj_id, n in counts.items()]
+    return targets
 
 
-def coco_annotation(ann_id: int, im_id: int, obj_id: int, mask_visib: np.ndarray, gt_info: dict,
-                    min_visib_fract: float = 0.1) -> dict:
-    """scene_gt_coco annotation of one instance as bop_toolkit's calc_gt_coco: its visible mask as RLE,
-    bbox = bbox_visib (x, y, w, h), area = visible pixels, ``ignore`` below ``min_visib_fract``."""
-    h, w = mask_visib.shape
-    return {"id": int(ann_id), "image_id": int(im_id), "category_id": int(obj_id), "iscrowd": 0,
-            "area": int(np.count_nonzero(mask_visib)), "bbox": list(gt_info["bbox_visib"]),
-            "segmentation": coco_rle(mask_visib), "width": int(w), "height": int(h),
-            "ignore": bool(gt_info["visib_fract"] < min_visib_fract)}
+BOP19_HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 
 
-def coco_dataset(categories: dict[int, str], images: list[dict], annotations: list[dict]) -> dict:
-    """scene_gt_coco.json content: categories {obj_id: name}, images [{id, file_name, width, height}]."""
-    return {"info": {"description": "pegasus generate", "version": "1.0"}, "licenses": [],
-            "categories": [{"id": int(k), "name": v, "supercategory": "pegasus"}
-                           for k, v in sorted(categories.items())],
-            "images": images, "annotations": annotations}
+def write_bop_results(path: str | os.PathLike, rows: list[dict]) -> Path:
+    """A BOP19 results file (bop_toolkit's ``save_bop_results``): one line per estimate, R as 9 numbers
+    row-major and t as 3 numbers in mm, space-separated; time in seconds (-1: unknown), the same for every
+    estimate of an image. rows: dicts with scene_id, im_id, obj_id, score, R [9], t [3] (mm), time."""
+    lines = [BOP19_HEADER] + [
+        f"{r['scene_id']},{r['im_id']},{r['obj_id']},{r['score']},{' '.join(str(float(v)) for v in r['R'])},"
+        f"{' '.join(str(float(v)) for v in r['t'])},{r.get('time', -1)}" for r in rows]
+    return write_atomic(path, lambda f: f.write(("\n".join(lines) + "\n").encode()))
+
+
+def read_bop_results(path: str | os.PathLike) -> list[dict]:
+    """The rows of a BOP19 results file: scene_id, im_id, obj_id (int), score, time (float), R [3, 3], t [3]
+    (mm) as arrays."""
+    lines = Path(path).read_text().splitlines()
+    if not lines or lines[0].strip() != BOP19_HEADER:
+        raise PegasusError(f"{path}: not a BOP19 results file (header {BOP19_HEADER!r} expected)")
+    rows = []
+    for n, line in enumerate(lines[1:], 2):
+        fields = line.split(",")
+        if len(fields) != 7:
+            raise PegasusError(f"{path}:{n}: 7 comma-separated fields expected, got {len(fields)}")
+        R, t = np.array(fields[4].split(), float), np.array(fields[5].split(), float)
+        if R.shape != (9,) or t.shape != (3,):
+            raise PegasusError(f"{path}:{n}: R needs 9 numbers and t 3")
+        rows.append({"scene_id": int(fields[0]), "im_id": int(fields[1]), "obj_id": int(fields[2]),
+                     "score": float(fields[3]), "R": R.reshape(3, 3), "t": t, "time": float(fields[6])})
+    return rows
 
 
 # ------------------------------------------------------------------ reading
@@ -165,13 +133,11 @@ def model_boxes(root: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
                      np.array([v["size_x"], v["size_y"], v["size_z"]]) / 1000.0) for k, v in info.items()}
 
 
-def object_names(split_dir: Path) -> dict[str, int]:
-    """{name: obj_id} from the scenes' scene_gt_coco.json categories (empty when there are none)."""
-    names = {}
-    for coco in sorted(split_dir.glob("*/scene_gt_coco.json")):
-        for category in read_json(coco).get("categories", []):
-            names[category["name"]] = int(category["id"])
-    return names
+def object_names(root: Path) -> dict[str, int]:
+    """{name: obj_id} from the ``name`` fields pegasus writes into models/models_info.json (empty for a
+    dataset without them)."""
+    info = read_json(Path(root) / "models" / "models_info.json")
+    return {v["name"]: int(k) for k, v in info.items() if "name" in v}
 
 
 @dataclass

@@ -85,6 +85,10 @@ class GenerateConfig(_Strict):
     depth_scale: float = Field(default=0.1, gt=0)  # png value * depth_scale = mm (BOP PBR uses 0.1)
     visib_delta: float = Field(default=0.015, gt=0)  # m, BOP's visibility tolerance
     dope_json: bool = False
+    # BOP split folder; "test" also writes test_targets_bop19.json (the instances at visib_fract >= 0.1)
+    split: Literal["train_pbr", "val", "test"] = "train_pbr"
+    # the dataset's name in bop_toolkit (its folder under the toolkit's datasets_path); COCO's supercategory
+    dataset_name: str = Field(default="pegasus", pattern=r"^[A-Za-z0-9_-]+$")
     seed: int = 0
     workers: int = Field(default=1, ge=1, le=256)
 

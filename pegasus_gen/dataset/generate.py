@@ -2,11 +2,14 @@
 
 Layout (BOP train_pbr style)::
 
-    OUTPUT/camera.json  models/obj_XXXXXX.ply  models/models_info.json
-    OUTPUT/train_pbr/SSSSSS/{rgb,depth,mask,mask_visib}/...  scene_camera.json scene_gt.json scene_gt_info.json
+    OUTPUT/camera.json  models/obj_XXXXXX.ply  models/models_info.json  models_eval/ (the same, resampled)
+    OUTPUT/SPLIT/SSSSSS/{rgb,depth,mask,mask_visib}/...  scene_camera.json scene_gt.json scene_gt_info.json
 
-    OUTPUT/train_pbr/SSSSSS/scene_gt_coco.json  (and rgb/IIIIII.json, DOPE/NDDS, with ``dope_json``)
+    OUTPUT/SPLIT/SSSSSS/scene_gt_coco.json  (and rgb/IIIIII.json, DOPE/NDDS, with ``dope_json``)
     OUTPUT/pegasus_config.yaml  (the config the dataset was made with)
+    OUTPUT/test_targets_bop19.json  (split test only)
+
+SPLIT is ``train_pbr`` (default), ``val`` or ``test``.
 
 Every scene is built in a hidden temporary folder and renamed into place when complete, so a killed
 run never leaves a half scene; ``resume`` skips the scenes already there after checking that the
@@ -33,8 +36,10 @@ from tqdm import tqdm
 
 from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.dataset import bop
+from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import GenerateConfig
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
+from pegasus_gen.dataset.models import eval_model, models_info_entry, write_model_ply
 from pegasus_gen.dataset.physics import DropResult, drop_objects
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
@@ -43,7 +48,6 @@ from pegasus_gen.io.images import rgb_to_uint8, write_image
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import render
 
-SPLIT = "train_pbr"
 CONFIG_FILE = "pegasus_config.yaml"
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
 RESUMABLE_KEYS = ("output", "library", "device", "workers")
@@ -81,14 +85,16 @@ def load_assets(cfg: GenerateConfig) -> Assets:
 
 
 def write_models(out: Path, assets: Assets, cfg: GenerateConfig) -> None:
-    """models/ (PLY in mm, bbox-centred object frames), models_info.json and camera.json."""
-    models = out / "models"
-    info = {}
-    for obj_id, asset in sorted(assets.objects.items()):
-        bop.write_model_ply(models / f"obj_{obj_id:06d}.ply", asset.mesh)
-        info[str(obj_id)] = bop.models_info_entry(asset.mesh, asset.manifest.symmetries_discrete,
-                                                  asset.manifest.symmetries_continuous)
-    _write_json(models / "models_info.json", info)
+    """models/ (each object's surface: PLY in mm with colours, bbox-centred object frames), models_eval/ (the
+    surfaces resampled as BOP's), their models_info.json, and camera.json."""
+    for folder, model_of in (("models", lambda a: a.surface), ("models_eval", lambda a: eval_model(a.surface))):
+        info = {}
+        for obj_id, asset in sorted(assets.objects.items()):
+            mesh = model_of(asset)
+            write_model_ply(out / folder / f"obj_{obj_id:06d}.ply", mesh)
+            info[str(obj_id)] = {**models_info_entry(mesh, asset.manifest.symmetries_discrete,
+                                                     asset.manifest.symmetries_continuous), "name": asset.name}
+        _write_json(out / folder / "models_info.json", info)
     K = camera_matrix(cfg)
     _write_json(out / "camera.json", {"cx": K[0, 2], "cy": K[1, 2], "depth_scale": cfg.depth_scale,
                                       "fx": K[0, 0], "fy": K[1, 1], "height": cfg.camera.height,
@@ -139,31 +145,31 @@ def frame_poses(plan: ScenePlan, im_id: int, dynamic: bool) -> dict[int, np.ndar
 
 
 BLOCKING_MARGIN = 0.03  # m: the environment may come this close in front of an object's centre (its support)
-CANVAS_MARGIN = 8  # px around an object's projected mesh box: its splats reach a little beyond the mesh
 
 
-def object_depth_canvas(splats, mesh, T_cam_obj: np.ndarray, K_canvas: np.ndarray, T_cam_world: np.ndarray,
-                        width: int, height: int, device: str) -> np.ndarray:
-    """[3H, 3W] z-depth (m) of one placed object rendered alone on the 3x canvas of calc_gt_info.
+def object_depth_canvas(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: np.ndarray, K_canvas: np.ndarray,
+                        width: int, height: int) -> np.ndarray:
+    """[3H, 3W] z-depth (m) of one placed object's model alone on the 3x canvas of calc_gt_info (0 where it
+    is absent): one ray through each pixel centre, as a rasteriser samples them.
 
-    Only the window around the object's projected mesh box is rendered (the rest of the canvas is
-    empty anyway), which makes this ~10x cheaper than rendering the whole canvas.
+    ``model`` is the object's surface prepared for ray casting and ``vertices`` [V, 3] its vertices (m,
+    object frame); only the window around their projection is cast, the rest of the canvas is empty.
     """
     canvas = np.zeros((3 * height, 3 * width), np.float32)
-    pts = np.asarray(mesh.vertices) @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
-    if (pts[:, 2] <= 0.01).any():  # partly behind the camera: render the whole canvas
+    pts = vertices @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
+    if (pts[:, 2] <= 0.01).any():  # partly behind the camera: cast the whole canvas
         x0, y0, x1, y1 = 0, 0, 3 * width, 3 * height
     else:
         uv = pts[:, :2] / pts[:, 2:3] * [K_canvas[0, 0], K_canvas[1, 1]] + [K_canvas[0, 2], K_canvas[1, 2]]
-        x0, y0 = np.maximum(np.floor(uv.min(0)).astype(int) - CANVAS_MARGIN, 0)
-        x1 = min(int(np.ceil(uv[:, 0].max())) + CANVAS_MARGIN + 1, 3 * width)
-        y1 = min(int(np.ceil(uv[:, 1].max())) + CANVAS_MARGIN + 1, 3 * height)
+        x0, y0 = np.maximum(np.floor(uv.min(0)).astype(int), 0)
+        x1 = min(int(np.ceil(uv[:, 0].max())) + 1, 3 * width)
+        y1 = min(int(np.ceil(uv[:, 1].max())) + 1, 3 * height)
         if x0 >= x1 or y0 >= y1:
             return canvas
     K_window = K_canvas.copy()
     K_window[0, 2] -= x0
     K_window[1, 2] -= y0
-    canvas[y0:y1, x0:x1] = render(splats, K_window, T_cam_world, x1 - x0, y1 - y0, device=device).depth
+    canvas[y0:y1, x0:x1] = model.depth(K_window, T_cam_obj, x1 - x0, y1 - y0)
     return canvas
 
 
@@ -222,8 +228,9 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     K_canvas[1, 2] += H
     for sub in ("rgb", "depth", "mask", "mask_visib"):
         (scene_dir / sub).mkdir(parents=True)
+    models = {a.manifest.obj_id: MeshRaycaster(a.surface) for a in objects}
     scene_gt, scene_camera, scene_info = {}, {}, {}
-    coco_images, coco_annotations = [], []
+    coco_images, coco_instances = [], []
     placed = None
     writer = _Writer()
     try:
@@ -241,32 +248,32 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             for gt_idx, i in enumerate(kept):
                 asset = objects[i]
                 T_cam_obj = T_cam_world @ poses[i]
-                canvas = object_depth_canvas(placed[gt_idx], asset.mesh, T_cam_obj, K_canvas, T_cam_world, W, H,
-                                             cfg.device)
+                canvas = object_depth_canvas(models[asset.manifest.obj_id], asset.surface.vertices, T_cam_obj,
+                                             K_canvas, W, H)
                 info, mask, visible = bop.gt_info_entry(canvas, out.depth, K, cfg.visib_delta)
                 name = f"{im_id:06d}_{gt_idx:06d}.png"
                 writer.image(scene_dir / "mask" / name, mask.astype(np.uint8) * 255)
                 writer.image(scene_dir / "mask_visib" / name, visible.astype(np.uint8) * 255)
                 gts.append(bop.pose_entry(T_cam_obj, asset.manifest.obj_id))
                 infos.append(info)
-                coco_annotations.append(bop.coco_annotation(len(coco_annotations), im_id, asset.manifest.obj_id,
-                                                            visible, info))
-                if cfg.dope_json:
-                    lo, hi = asset.mesh.bounds
-                    dope_objects.append(dope_object(asset.name, asset.manifest.obj_id, T_cam_obj, lo, hi - lo, K,
-                                                    info["visib_fract"]))
+                coco_instances.append(CocoInstance(im_id, asset.manifest.obj_id, mask, visible, info["visib_fract"]))
+                if cfg.dope_json and info["px_count_visib"] > 0:
+                    lo, hi = asset.surface.bounds
+                    dope_objects.append(dope_object(asset.name, asset.manifest.obj_id, gt_idx, T_cam_obj, poses[i], lo,
+                                                    hi - lo, K, info))
             scene_gt[str(im_id)] = gts
             scene_info[str(im_id)] = infos
             if cfg.dope_json:
-                _write_json(scene_dir / "rgb" / f"{im_id:06d}.json", dope_image(K, W, H, dope_objects))
+                _write_json(scene_dir / "rgb" / f"{im_id:06d}.json", dope_image(K, T_cam_world, W, H, dope_objects))
             on_frame()
     finally:
         writer.close()
-    categories = {a.manifest.obj_id: a.name for a in objects}
     _write_json(scene_dir / "scene_gt.json", scene_gt)
     _write_json(scene_dir / "scene_camera.json", scene_camera)
     _write_json(scene_dir / "scene_gt_info.json", scene_info)
-    _write_json(scene_dir / "scene_gt_coco.json", bop.coco_dataset(categories, coco_images, coco_annotations))
+    for name, modal in (("scene_gt_coco.json", False), ("scene_gt_coco_modal.json", True)):
+        _write_json(scene_dir / name, scene_coco(sorted(assets.objects), cfg.dataset_name, coco_images,
+                                                 coco_instances, modal))
 
 
 def build_scene(split: Path, scene_id: int, cfg: GenerateConfig, assets: Assets,
@@ -359,7 +366,7 @@ def generate(cfg: GenerateConfig, resume: bool = False) -> Path:
     assets = load_assets(cfg)  # all checks before the output folder is touched
     out = Path(cfg.output)
     prepare_output(out, cfg, resume)
-    split = out / SPLIT
+    split = out / cfg.split
     split.mkdir(exist_ok=True)
     write_models(out, assets, cfg)
     todo = [s for s in range(cfg.scenes) if not (split / f"{s:06d}").is_dir()]
@@ -369,4 +376,6 @@ def generate(cfg: GenerateConfig, resume: bool = False) -> Path:
         else:
             for scene_id in todo:
                 build_scene(split, scene_id, cfg, assets, lambda: bar.update(1))
+    if cfg.split == "test":
+        _write_json(out / "test_targets_bop19.json", bop.targets_bop19(split))
     return out

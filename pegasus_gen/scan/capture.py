@@ -97,7 +97,11 @@ def cup_splats(rng: np.random.Generator) -> tuple[SplatCloud, float]:
         x, y = int(rng.integers(0, label.shape[1])), int(rng.integers(0, label.shape[0]))
         cv2.circle(label, (x, y), int(rng.integers(10, 35)), colour, -1, cv2.LINE_AA)
     lid = demo_assets.lid_texture(bg, band, text, brand)
-    return demo_assets.frustum_splats(rb, rt, h, label, lid, (0.95, 0.95, 0.93), rng).with_label(1), h
+
+    def colors_of(points):
+        return demo_assets.frustum_colors(points, rt, h, label, lid, (0.95, 0.95, 0.93))
+
+    return demo_assets.frustum_splats(rb, rt, h, colors_of, rng).with_label(1), h
 
 
 def hemisphere_poses(count: int, radius: float, target, rng: np.random.Generator,
