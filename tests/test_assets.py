@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from pegasus_gen.assets.library import AssetLibrary, AssetManifest, load_asset, save_asset
+from pegasus_gen.assets.surface import mesh_surface
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.from_mesh import mesh_to_splats
 
@@ -24,7 +25,7 @@ def make_object(tmp_path, name="cup", obj_id=1, mesh=None):
     manifest = AssetManifest(name=name, kind="object", obj_id=obj_id, mass=0.3,
                              symmetries_continuous=[{"axis": [0, 0, 1]}])
     splats = mesh_to_splats(mesh, np.random.default_rng(0), spacing=0.01)
-    return save_asset(tmp_path / name, manifest, splats, mesh)
+    return save_asset(tmp_path / name, manifest, splats, mesh, mesh_surface(mesh, max_edge=0.02))
 
 
 def test_save_and_load_round_trip(tmp_path):
@@ -33,6 +34,22 @@ def test_save_and_load_round_trip(tmp_path):
     assert again.manifest == asset.manifest
     assert np.array_equal(again.splats.means, asset.splats.means)
     assert np.isclose(again.mesh.volume, 0.15 * 0.1 * 0.1)
+    assert np.allclose(again.surface.vertices, asset.surface.vertices, atol=1e-7)
+    assert np.array_equal(again.surface.faces, asset.surface.faces)
+    assert np.array_equal(again.surface.visual.vertex_colors, asset.surface.visual.vertex_colors)
+
+
+def test_an_object_needs_its_surface_model(tmp_path):
+    mesh = off_centre_object()
+    manifest = AssetManifest(name="cup", kind="object", obj_id=1)
+    splats = mesh_to_splats(mesh, np.random.default_rng(0), spacing=0.01)
+    with pytest.raises(PegasusError, match="needs a surface model"):
+        save_asset(tmp_path / "cup", manifest, splats, mesh)
+    assert not (tmp_path / "cup").exists()
+    make_object(tmp_path)
+    (tmp_path / "cup" / "surface.ply").unlink()
+    with pytest.raises(PegasusError, match="surface.ply: missing .*import or build it again"):
+        load_asset(tmp_path / "cup")
 
 
 def test_urdf_inertial_is_the_true_centre_of_mass(tmp_path):

@@ -37,10 +37,11 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
 def _sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup. image [H, W, 3] float in [0, 1]; uv [N, 2], origin bottom-left. Returns [N, 3].
 
-    Coordinates outside [0, 1] repeat the texture; samples at the border clamp to the edge texels.
+    Coordinates outside [0, 1] repeat the texture (beyond a rounding tolerance: an interpolated 1 + 1e-16 is
+    the edge, not the start again); samples at the border clamp to the edge texels.
     """
     h, w = image.shape[:2]
-    uv = np.where((uv < 0) | (uv > 1), uv % 1.0, uv)
+    uv = np.where((uv < -1e-9) | (uv > 1 + 1e-9), uv % 1.0, np.clip(uv, 0.0, 1.0))
     u = uv[:, 0] * w - 0.5
     v = (1.0 - uv[:, 1]) * h - 0.5
     u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
