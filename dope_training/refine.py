@@ -42,6 +42,7 @@ import numpy as np
 import open3d as o3d
 
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.geometry.pose_error import adds_error
 
 
 @dataclass
@@ -85,6 +86,9 @@ class RefineParams:
     max_move_fraction: float = 0.5  # the object's centre may move by this fraction of its initial distance
     max_rotation_deg: float = 45.0  # degrees the refined rotation may differ from the input's
     confident_fitness: float = 0.95  # refine_multistart tries other starts unless the first's support reaches this
+    # ... and keeps an accepted first start when the best other one is within this ADD-S of it (m): the depth
+    # cannot tell such poses apart (a cup turned about its axis), so the network's rotation stands
+    same_surface_m: float = 0.01
 
 
 def refine_pose(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model_points: np.ndarray,
@@ -309,7 +313,8 @@ def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
     the position from the centroid and the depth is not. These starts are a grid, not estimates (the cube's
     rotations lie up to 63 degrees from the truth), so from them ICP may turn any amount. Returns the
     accepted refinement of highest support (a pose with much of the object hidden explains less than one
-    without), or the first start's rejection.
+    without; an accepted first start when the best lies within ``params.same_surface_m`` ADD-S of it), or the
+    first start's rejection.
     Arguments as ``refine_pose``."""
     p = params or RefineParams()
     first = refine_pose(T_cam_obj, depth_m, K, model_points, model_normals, symmetry_axis, p)
@@ -331,6 +336,8 @@ def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
         result = refine_pose(start, depth_m, K, model_points, model_normals, symmetry_axis, free)
         if result.accepted and (not best.accepted or result.support > best.support):
             best = result
+    if first.accepted and adds_error(model_points, best.T, first.T) <= p.same_surface_m:
+        return first
     return best
 
 
