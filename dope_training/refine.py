@@ -86,9 +86,11 @@ class RefineParams:
     max_move_fraction: float = 0.5  # the object's centre may move by this fraction of its initial distance
     max_rotation_deg: float = 45.0  # degrees the refined rotation may differ from the input's
     confident_fitness: float = 0.95  # refine_multistart tries other starts unless the first's support reaches this
-    # ... and keeps an accepted first start when the best other one is within this ADD-S of it (m): the depth
-    # cannot tell such poses apart (a cup turned about its axis), so the network's rotation stands
+    # ... and keeps an accepted first start when the best other one lies within same_surface_m ADD-S of it (m)
+    # and gains less than same_surface_gain support: the depth cannot tell such poses apart (a textured cup
+    # turned about its axis gained 0.06), the network's rotation can; a cup upside down gained 0.17
     same_surface_m: float = 0.01
+    same_surface_gain: float = 0.1
 
 
 def refine_pose(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray, model_points: np.ndarray,
@@ -313,8 +315,8 @@ def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
     the position from the centroid and the depth is not. These starts are a grid, not estimates (the cube's
     rotations lie up to 63 degrees from the truth), so from them ICP may turn any amount. Returns the
     accepted refinement of highest support (a pose with much of the object hidden explains less than one
-    without; an accepted first start when the best lies within ``params.same_surface_m`` ADD-S of it), or the
-    first start's rejection.
+    without), or the first start's rejection. An accepted first start stands against a best within
+    ``params.same_surface_m`` ADD-S of it that gains less than ``params.same_surface_gain`` support.
     Arguments as ``refine_pose``."""
     p = params or RefineParams()
     first = refine_pose(T_cam_obj, depth_m, K, model_points, model_normals, symmetry_axis, p)
@@ -336,7 +338,8 @@ def refine_multistart(T_cam_obj: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
         result = refine_pose(start, depth_m, K, model_points, model_normals, symmetry_axis, free)
         if result.accepted and (not best.accepted or result.support > best.support):
             best = result
-    if first.accepted and adds_error(model_points, best.T, first.T) <= p.same_surface_m:
+    if (first.accepted and best.support - first.support < p.same_surface_gain
+            and adds_error(model_points, best.T, first.T) <= p.same_surface_m):
         return first
     return best
 
