@@ -119,13 +119,19 @@ def splats_to_mesh(cloud: SplatCloud, params: MeshParams = MeshParams(), closed:
     else:
         shape = _as_trimesh(o3d.geometry.TriangleMesh.create_from_point_cloud_alpha_shape(pcd, alpha, tetra, pt_map))
     trimesh.repair.fix_normals(shape)
-    smooth = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(shape.vertices),
-                                       o3d.utility.Vector3iVector(shape.faces))
-    if params.smooth_iterations > 0:
-        smooth = smooth.filter_smooth_taubin(params.smooth_iterations)
-    mesh = _decimate(smooth, params, closed)
+    raw = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(shape.vertices),
+                                    o3d.utility.Vector3iVector(shape.faces))
+    smoothed = params.smooth_iterations > 0
+    try:
+        mesh = _decimate(raw.filter_smooth_taubin(params.smooth_iterations) if smoothed else raw, params, closed)
+    except PegasusError:
+        if not smoothed:
+            raise
+        # smoothing can pull two vertices of a thin part together; the merged vertex opens the surface
+        smoothed = False
+        mesh = _decimate(raw, params, closed)
     report = {"params": asdict(params), "alpha": alpha, "spacing": spacing, "points": len(pcd.points),
-              "triangles": len(mesh.faces), "watertight": bool(mesh.is_watertight),
+              "smoothed": smoothed, "triangles": len(mesh.faces), "watertight": bool(mesh.is_watertight),
               "volume": float(mesh.volume) if mesh.is_watertight else None}
     return mesh, report
 
