@@ -36,7 +36,10 @@ def quat_to_matrix(q):
 
 
 def reference_render(cloud, K, T_cam_world, width, height, background=(0, 0, 0), near=0.01, eps2d=0.3):
-    """Returns dict rgb [H,W,3], alpha [H,W], depth_sum [H,W] (sum w z), weights {label: [H,W]}."""
+    """Returns dict rgb [H,W,3], alpha [H,W], depth_sum [H,W] (sum w z, each Gaussian's z where the pixel's ray
+    meets its highest density: t = p^T S^-1 d / d^T S^-1 d for the ray t d, d = ((u - cx)/fx, (v - cy)/fy, 1),
+    mean p and covariance S in the camera frame, held within 3.33 standard deviations of the mean's z),
+    weights {label: [H,W]}."""
     R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
     cam_center = -R.T @ t
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -62,7 +65,9 @@ def reference_render(cloud, K, T_cam_world, width, height, background=(0, 0, 0),
         d = mean - cam_center
         color = sh_color(cloud.sh[i], d / np.linalg.norm(d))
         mu = np.array([fx * p[0] / z + cx, fy * p[1] / z + cy])
-        gauss.append((z, mu, np.linalg.inv(cov2), o, color, int(cloud.labels[i])))
+        info = np.linalg.inv(cov_cam)
+        z_range = (z - 3.33 * math.sqrt(cov_cam[2, 2]), z + 3.33 * math.sqrt(cov_cam[2, 2]))
+        gauss.append((z, mu, np.linalg.inv(cov2), o, color, int(cloud.labels[i]), info @ p, info, z_range))
     gauss.sort(key=lambda g: g[0])
     rgb = np.zeros((height, width, 3))
     alpha = np.zeros((height, width))
@@ -72,7 +77,8 @@ def reference_render(cloud, K, T_cam_world, width, height, background=(0, 0, 0),
         for u in range(width):
             T = 1.0
             acc = np.zeros(3)
-            for z, mu, inv, o, color, label in gauss:
+            ray = np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
+            for z, mu, inv, o, color, label, info_p, info, z_range in gauss:
                 dlt = mu - np.array([u, v], np.float64)
                 power = -0.5 * dlt @ inv @ dlt
                 if power > 0:
@@ -84,7 +90,7 @@ def reference_render(cloud, K, T_cam_world, width, height, background=(0, 0, 0),
                     break
                 w = a * T
                 acc += w * color
-                depth_sum[v, u] += w * z
+                depth_sum[v, u] += w * np.clip((info_p @ ray) / (ray @ info @ ray), *z_range)
                 weights.setdefault(label, np.zeros((height, width)))[v, u] += w
                 T *= 1 - a
             rgb[v, u] = acc + T * np.asarray(background, np.float64)

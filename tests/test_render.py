@@ -33,7 +33,10 @@ def test_cpu_matches_slow_reference(seed, degree):
     np.testing.assert_allclose(out.rgb, np.clip(ref["rgb"], 0, 1), atol=2e-5)
     np.testing.assert_allclose(out.alpha, ref["alpha"], atol=2e-5)
     covered = ref["alpha"] > 1e-3
-    np.testing.assert_allclose(out.depth[covered], ref["depth_sum"][covered] / ref["alpha"][covered], rtol=1e-4)
+    # splats up to 27 cm across at 2 m: the renderer's affine camera model bends their depth on a pixel's ray
+    # by up to 2.5 % (0.12-0.16 % median); surface-sized splats are held closer below
+    depth_ratio = np.abs(out.depth[covered] / (ref["depth_sum"][covered] / ref["alpha"][covered]) - 1)
+    assert depth_ratio.max() < 0.05 and np.median(depth_ratio) < 5e-3
     for i, label in enumerate((0, 3, 7)):
         np.testing.assert_allclose(out.label_weights[i], ref["weights"].get(label, 0), atol=2e-5)
     assert np.all(out.label_weights[3] == 0)  # label 99 is absent
@@ -87,6 +90,21 @@ def dense_plane(rng, center, normal, size=1.2, n=40_000):
     return plane.transformed(T)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_depth_of_surface_sized_splats_is_where_each_pixel_ray_meets_them(seed):
+    # Millimetre splats (a scanned surface's) in random orientations: each splat's depth on a pixel is where
+    # that pixel's ray meets its highest density, not its centre's z (1-3 mm off at the footprint's edge)
+    rng = np.random.default_rng(seed)
+    cloud = random_cloud(rng, 80, sh_degree=0, extent=0.05, scale_range=(0.0005, 0.004), opacity_range=(0.3, 0.9))
+    K = np.array([[450.0, 0, 59.6], [0, 460.0, 44.3], [0, 0, 1]])
+    T = look_at([0.1, -0.55, 0.3], [0.0, 0.0, 0.0])
+    out = render(cloud, K, T, 120, 90, device="cpu", alpha_min=0.0)
+    ref = reference_render(cloud, K, T, 120, 90)
+    covered = ref["alpha"] > 1e-3
+    error = np.abs(out.depth[covered] - ref["depth_sum"][covered] / ref["alpha"][covered])
+    assert covered.sum() > 500 and error.max() < 1e-3 and np.median(error) < 1e-4, (error.max(), np.median(error))
+
+
 def test_depth_of_a_fronto_parallel_plane_is_exact():
     rng = np.random.default_rng(0)
     cloud = dense_plane(rng, [0, 0, 2.0], [0, 0, -1.0])
@@ -108,9 +126,9 @@ def test_depth_of_a_tilted_plane_follows_the_ray_intersection():
     rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
     z_true = (normal @ center) / (rays @ normal)  # z-depth where the ray meets the plane
     assert (out.alpha > 0.95).all()
-    # Alpha-blended depth leans towards the camera on an oblique surface (the nearer of the overlapping
-    # splats get more weight): ~2 mm here with 4 mm splats at 1.5 m, far below BOP's 15 mm visibility delta.
-    assert np.abs(out.depth - z_true).max() < 4e-3
+    # Each splat's depth on a pixel is where the pixel's ray meets it: 0.14 mm at most off the plane here
+    # (4 mm splats at 1.5 m); blending the splats' centre depths leaned 2 mm towards the camera.
+    assert np.abs(out.depth - z_true).max() < 5e-4
 
 
 def test_occluding_object_owns_the_label_and_depth():

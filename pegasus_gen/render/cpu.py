@@ -26,6 +26,7 @@ T_MIN = 1e-4  # a pixel stops when its transmittance would fall to this
 EXTEND_MAX = 3.33  # pixel-box half size in standard deviations, at most
 TILE = 16
 PROJECT_CHUNK = 4096  # splats per parallel work item in project()
+GRAD_EPS = 1e-3  # px^2 added to the undilated 2D covariance before the depth gradient inverts it
 
 
 @numba.njit(cache=True)
@@ -40,13 +41,18 @@ def frustum_limits(width, height, fx, fy, cx, cy):
 
 @numba.njit(parallel=True, cache=True)
 def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, fy, cx, cy,
-            width, height, near, far, eps2d, valid, mean2d, conic, depth, box, rgb, log_opacity):
+            width, height, near, far, eps2d, valid, mean2d, conic, depth, depth_grad, box, rgb, log_opacity):
     """Project splats into the image, writing into the given output arrays (all with N rows).
 
     Inputs: means [N,3], quats [N,4] wxyz, log_scales [N,3], opacity_logits [N], sh [N,K,3] (float32,
     world frame); R [3,3], t [3] world->camera; cam_center [3] world; fx, fy, cx, cy OpenCV intrinsics.
     Outputs: valid [N] bool (False: culled, other outputs undefined), mean2d [N,2] pixels,
-    conic [N,3] (A, B, C of the inverse 2D covariance), depth [N] camera z (m),
+    conic [N,3] (A, B, C of the inverse 2D covariance), depth [N] camera z (m) of the centre,
+    depth_grad [N,3] (dz/du, dz/dv in m/px, and a bound in m): the splat's depth at pixel offset (du, dv)
+    from its centre is depth + clip(dz/du du + dz/dv dv, -bound, bound), the point of highest density on
+    that pixel's ray (the conditional mean of z given the image position, in the same affine camera model as
+    the covariance; on a flat splat, the ray's intersection with its plane), held within EXTEND_MAX standard
+    deviations of z (a sub-pixel splat reaches neighbouring pixels through eps2d alone),
     box [N,4] int32 inclusive pixel box (x0, x1, y0, y1), rgb [N,3], log_opacity [N] (natural log).
     """
     n = means.shape[0]
@@ -153,6 +159,15 @@ def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, 
             conic[i, 1] = -b / det
             conic[i, 2] = a / det
             depth[i] = z
+            # depth gradient: Cov(uv)^-1 Cov(uv, z), undilated (eps2d widens the footprint, not the surface)
+            cuz = u0 * c20 + u1 * c21 + u2 * c22
+            cvz = v0 * c20 + v1 * c21 + v2 * c22
+            a0 = a - eps2d + GRAD_EPS
+            c0 = c - eps2d + GRAD_EPS
+            det0 = a0 * c0 - b * b
+            depth_grad[i, 0] = (c0 * cuz - b * cvz) / det0
+            depth_grad[i, 1] = (a0 * cvz - b * cuz) / det0
+            depth_grad[i, 2] = EXTEND_MAX * math.sqrt(c20 * c20 + c21 * c21 + c22 * c22)
             box[i, 0] = x0
             box[i, 1] = x1
             box[i, 2] = y0
@@ -219,12 +234,13 @@ def bin_to_tiles(order, box, tiles_x, n_tiles):
 
 
 @numba.njit(parallel=True, cache=True)
-def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, log_opacity, label_idx, n_labels, requested,
-              width, height, background):
-    """Blend splats front to back per pixel.
+def rasterize(offsets, ids, mean2d, conic, depth, depth_grad, box, rgb, log_opacity, label_idx, n_labels,
+              requested, width, height, background):
+    """Blend splats front to back per pixel (in centre-depth order); each splat contributes its depth on
+    the pixel's ray (``project``'s depth_grad).
 
     label_idx [M] dense label index per splat (0..n_labels-1); requested [R] dense indices (-1: absent).
-    Returns (rgb [H,W,3] f32 incl. background, depth_sum [H,W] f64 (sum of w z), transmittance [H,W] f64,
+    Returns (rgb [H,W,3] f32 incl. background, depth_sum [H,W] f64 (sum of w z_ray), transmittance [H,W] f64,
     label [H,W] int32 dense index with the largest weight (-1 if none), weights [R,H,W] f32).
     """
     tiles_x = (width + TILE - 1) // TILE
@@ -264,6 +280,9 @@ def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, log_opacity, label_i
             gr = rgb[g, 1]
             bl = rgb[g, 2]
             z = depth[g]
+            zu = depth_grad[g, 0]
+            zv = depth_grad[g, 1]
+            z_bound = depth_grad[g, 2]
             # alpha >= 1/255  <=>  q(dx, dy) = 0.5 A dx^2 + B dx dy + 0.5 C dy^2 <= ln(255 o)
             lim = log_o + log_thr_base
             for y in range(gy0, gy1 + 1):
@@ -297,7 +316,7 @@ def rasterize(offsets, ids, mean2d, conic, depth, box, rgb, log_opacity, label_i
                     col[ly, lx, 0] += r * w
                     col[ly, lx, 1] += gr * w
                     col[ly, lx, 2] += bl * w
-                    dsum[ly, lx] += z * w
+                    dsum[ly, lx] += (z + min(z_bound, max(-z_bound, -zu * dx - zv * dy))) * w
                     lw[ly, lx, lab] += w
                     trans[ly, lx] = t_next
             if n_done == n_pix:

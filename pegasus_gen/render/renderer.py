@@ -114,7 +114,7 @@ def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, heig
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     n = sum(len(p) for p in parts)
     valid = np.empty(n, dtype=bool)
-    mean2d, conic, depth = np.empty((n, 2)), np.empty((n, 3)), np.empty(n)
+    mean2d, conic, depth, depth_grad = np.empty((n, 2)), np.empty((n, 3)), np.empty(n), np.empty((n, 3))
     box, rgb, log_opacity = np.empty((n, 4), np.int32), np.empty((n, 3)), np.empty(n)
     start = 0
     for part in parts:
@@ -123,7 +123,8 @@ def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, heig
             rasterizer_cpu.project(
                 part.means, part.quats_wxyz, part.log_scales, part.opacity_logits, part.sh,
                 R, t, cam_center, fx, fy, cx, cy, width, height, near, far, EPS2D,
-                valid[start:end], mean2d[start:end], conic[start:end], depth[start:end], box[start:end],
+                valid[start:end], mean2d[start:end], conic[start:end], depth[start:end], depth_grad[start:end],
+                box[start:end],
                 rgb[start:end], log_opacity[start:end])
         start = end
     lab = np.concatenate(label_index) if label_index else np.zeros(0, np.int32)
@@ -132,7 +133,7 @@ def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, heig
     tiles_y = (height + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
     offsets, ids = rasterizer_cpu.bin_to_tiles(order, box, tiles_x, tiles_x * tiles_y)
     rgb_img, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
-        offsets, ids, mean2d, conic, depth, box, rgb, log_opacity, lab, n_labels,
+        offsets, ids, mean2d, conic, depth, depth_grad, box, rgb, log_opacity, lab, n_labels,
         np.asarray(requested_index, dtype=np.int64), width, height, background)
     return rgb_img, depth_sum, 1.0 - trans, label_dense, weights
 
