@@ -8,10 +8,11 @@ try:
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+    from launch_ros.parameter_descriptions import ParameterValue
 
     from launch import LaunchDescription
 except ImportError:
-    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
+    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, ParameterValue
 
 
 def generate_launch_description():
@@ -40,10 +41,12 @@ def generate_launch_description():
         Node(package="pegasus", executable="generator_node", parameters=[{
             "config": arg("config"), "output": arg("output"), "scenes": arg("scenes"),
             "frames_per_scene": arg("frames"), "width": arg("width"), "height": arg("height"), "device": arg("device"),
-            "library": arg("library"), "environments": arg("environments"), "objects": arg("objects_config")}]),
+            "library": arg("library"), "environments": ParameterValue(arg("environments"), value_type=str),
+            "objects": ParameterValue(arg("objects_config"), value_type=str)}]),
         Node(package="pegasus", executable="trainer_node", parameters=[{
             "object": arg("object"), "out": arg("run"), "variant": arg("variant"), "epochs": arg("epochs"),
-            "size": arg("size"), "device": arg("device"), "options": arg("train_options")}]),
+            "size": arg("size"), "device": arg("device"),
+            "options": ParameterValue(arg("train_options"), value_type=str)}]),
         Node(package="pegasus", executable="camera_node", parameters=[{"folder": arg("images"), "rate": 1.0,
                                                                         "wait_for_folder": True}]),
         Node(package="pegasus", executable="inference_node", parameters=[{"device": "cpu",

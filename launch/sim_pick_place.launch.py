@@ -17,10 +17,11 @@ try:
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+    from launch_ros.parameter_descriptions import ParameterValue
 
     from launch import LaunchDescription
 except ImportError:
-    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
+    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, ParameterValue
 
 T_WORLD_BASE = np.array([[1.0, 0, 0, 0.45], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
 T_WORLD_CAM = np.linalg.inv(look_at([0.0, -0.35, 0.55], [0.0, 0.0, 0.0]))
@@ -46,7 +47,8 @@ def generate_launch_description():
         DeclareLaunchArgument("seed", default_value="0"),
         DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
         Node(package="pegasus", executable="sim_controller_node", parameters=[{
-            "host": arg("host"), "time_scale": arg("time_scale"), "basket": BASKET}]),
+            "host": arg("host"), "time_scale": ParameterValue(arg("time_scale"), value_type=float),
+            "basket": BASKET}]),
         Node(package="pegasus", executable="camera_node", parameters=[{
             "source": "sim", "host": arg("host"), "library": arg("library"), "environment": arg("environment"),
             "T_world_base": T_WORLD_BASE.ravel().tolist(), "T_world_cam": T_WORLD_CAM.ravel().tolist(),
@@ -57,7 +59,8 @@ def generate_launch_description():
             "host": arg("host"), "hand_eye": T_BASE_CAM.ravel().tolist(), "basket": BASKET,
             "wait_for_attempt": True, "speed": 0.3}]),
         Node(package="pegasus", executable="evaluator_node", parameters=[{
-            "host": arg("host"), "library": arg("library"), "objects": arg("objects"), "attempts": arg("attempts"),
+            "host": arg("host"), "library": arg("library"), "objects": ParameterValue(arg("objects"), value_type=str),
+            "attempts": arg("attempts"),
             "seed": arg("seed"), "hand_eye": T_BASE_CAM.ravel().tolist(), "report": arg("report"),
             "pose_source": arg("pose_source")}]),
     ])

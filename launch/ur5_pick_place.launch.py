@@ -2,19 +2,26 @@
 ur-rtde. Starts in dry-run mode: the robot node only logs what it would send until dry_run:=false.
 
 pegasus launch launch/ur5_pick_place.launch.py host:=192.168.1.10 model:=MODEL.onnx \\
-    hand_eye:="r11 r12 r13 tx r21 ... 0 0 0 1" basket:="-0.25 -0.28 0.0" [dry_run:=false]
+    hand_eye:="[r11, r12, r13, tx, r21, ..., 0.0, 0.0, 0.0, 1.0]" basket:="[-0.25, -0.28, 0.0]" [dry_run:=false]
 hand_eye is T_base_cam (camera pose in the robot base frame, 16 numbers row-major, metres) from your
-hand-eye calibration; basket is the basket floor centre in the base frame.
+hand-eye calibration; basket is the basket floor centre in the base frame. Both are YAML lists of floats:
+write every number with a decimal point (1.0, not 1), as launch_ros reads them as List[float].
 """
+
+import typing
 
 try:
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+    from launch_ros.parameter_descriptions import ParameterValue
 
     from launch import LaunchDescription
 except ImportError:
-    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
+    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, ParameterValue
+
+
+List = typing.List  # launch_ros's value_type for a list parameter
 
 
 def generate_launch_description():
@@ -22,8 +29,9 @@ def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument("host", description="the UR controller's address"),
         DeclareLaunchArgument("model", description="DOPE ONNX export"),
-        DeclareLaunchArgument("hand_eye", description="T_base_cam, 16 numbers row-major"),
-        DeclareLaunchArgument("basket", default_value="-0.25 -0.28 0.0", description="basket floor centre x y z"),
+        DeclareLaunchArgument("hand_eye", description="T_base_cam, a YAML list of 16 floats, row-major"),
+        DeclareLaunchArgument("basket", default_value="[-0.25, -0.28, 0.0]",
+                              description="basket floor centre, a YAML list of 3 floats (x, y, z)"),
         DeclareLaunchArgument("source", default_value="oak", choices=["oak", "folder"]),
         DeclareLaunchArgument("images", default_value="", description="image folder (source:=folder)"),
         DeclareLaunchArgument("execute", default_value="pregrasp", choices=["pregrasp", "pick"]),
@@ -33,6 +41,7 @@ def generate_launch_description():
             "source": arg("source"), "folder": arg("images"), "rate": 2.0}]),
         Node(package="pegasus", executable="inference_node", parameters=[{"model": arg("model"), "device": "auto"}]),
         Node(package="pegasus", executable="robot_node", parameters=[{
-            "host": arg("host"), "hand_eye": arg("hand_eye"), "basket": arg("basket"), "execute": arg("execute"),
-            "dry_run": arg("dry_run"), "speed": arg("speed")}]),
+            "host": arg("host"), "hand_eye": ParameterValue(arg("hand_eye"), value_type=List[float]),
+            "basket": ParameterValue(arg("basket"), value_type=List[float]), "execute": arg("execute"),
+            "dry_run": arg("dry_run"), "speed": ParameterValue(arg("speed"), value_type=float)}]),
     ])

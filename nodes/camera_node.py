@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nodes.ros import Node, msgs, run_node
+from nodes.ros import Node, declare, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -122,15 +122,18 @@ class SimSource:
         return self.K
 
 
+PARAMETERS = (
+    ("source", "folder"), ("folder", ""), ("loop", True), ("rate", 5.0), ("frame_id", "camera"),
+    ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480),
+    ("wait_for_folder", False), ("host", "127.0.0.1"), ("library", ""), ("environment", "wooden_table"),
+    ("T_world_base", [float(v) for v in np.eye(4).ravel()]), ("T_world_cam", [float(v) for v in np.eye(4).ravel()]),
+    ("device", "auto"))
+
+
 class CameraNode(Node):
     def __init__(self, **kwargs):
         super().__init__("camera_node", **kwargs)
-        p = {name: self.declare_parameter(name, default).value for name, default in (
-            ("source", "folder"), ("folder", ""), ("loop", True), ("rate", 5.0), ("frame_id", "camera"),
-            ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480),
-            ("wait_for_folder", False), ("host", "127.0.0.1"), ("library", ""), ("environment", "wooden_table"),
-            ("T_world_base", list(np.eye(4).ravel())), ("T_world_cam", list(np.eye(4).ravel())),
-            ("device", "auto"))}
+        p = declare(self, PARAMETERS)
         self.source = None
         if p["source"] == "folder":
             if not p["wait_for_folder"]:

@@ -18,8 +18,15 @@ import concurrent.futures
 import logging
 import threading
 import time
+import warnings
 from dataclasses import dataclass
-from enum import Enum
+from enum import Enum, IntEnum
+
+
+class ParameterException(Exception):
+    def __init__(self, message: str, name: str):
+        super().__init__(message)
+        self.parameter_name = name
 
 
 class ParameterNotDeclaredException(Exception):
@@ -28,6 +35,21 @@ class ParameterNotDeclaredException(Exception):
 
 class ParameterAlreadyDeclaredException(Exception):
     pass
+
+
+class InvalidParameterTypeException(ParameterException):
+    """A value of another type than the parameter's static type (rclpy.exceptions)."""
+
+    def __init__(self, desired_parameter: "Parameter", expected_type: str):
+        value = desired_parameter.value
+        super().__init__(f"Trying to set parameter '{desired_parameter.name}' to '{value}' of type "
+                         f"'{Parameter.Type.from_parameter_value(value).name}', expecting type '{expected_type}'",
+                         desired_parameter.name)
+
+
+class ParameterUninitializedException(ParameterException):
+    def __init__(self, name: str):
+        super().__init__(f"The parameter '{name}' is not initialized", name)
 
 
 # -- QoS --------------------------------------------------------------------------------------------------
@@ -225,29 +247,107 @@ class Client:
         return future
 
 
-@dataclass
 class Parameter:
-    name: str
-    value: object = None
+    """rclpy.parameter.Parameter: a name, a type (``Parameter.Type``, from the value unless given) and a value
+    of that type (an int is not a DOUBLE; arrays are lists or tuples of one element type; an empty list is
+    a BYTE_ARRAY)."""
 
-    def get_parameter_value(self):
-        return self
+    class Type(IntEnum):
+        NOT_SET = 0
+        BOOL = 1
+        INTEGER = 2
+        DOUBLE = 3
+        STRING = 4
+        BYTE_ARRAY = 5
+        BOOL_ARRAY = 6
+        INTEGER_ARRAY = 7
+        DOUBLE_ARRAY = 8
+        STRING_ARRAY = 9
+
+        @classmethod
+        def from_parameter_value(cls, value) -> "Parameter.Type":
+            if value is None:
+                return cls.NOT_SET
+            for kind, scalar in ((cls.BOOL, bool), (cls.INTEGER, int), (cls.DOUBLE, float), (cls.STRING, str)):
+                if isinstance(value, scalar):
+                    return kind
+            if isinstance(value, (list, tuple)):
+                for kind, item in ((cls.BYTE_ARRAY, bytes), (cls.BOOL_ARRAY, bool), (cls.INTEGER_ARRAY, int),
+                                   (cls.DOUBLE_ARRAY, float), (cls.STRING_ARRAY, str)):
+                    if all(isinstance(v, item) for v in value):
+                        return kind
+                raise TypeError(f"The given value is not a list of one of the allowed types '{value}'.")
+            raise TypeError(f"The given value is not one of the allowed types '{value}'.")
+
+        def check(self, value) -> bool:
+            """Whether ``value`` can be held as this type (rclpy's rule: a bool is an int here)."""
+            if self == Parameter.Type.NOT_SET:
+                return value is None
+            scalar = {Parameter.Type.BOOL: bool, Parameter.Type.INTEGER: int, Parameter.Type.DOUBLE: float,
+                      Parameter.Type.STRING: str}.get(self)
+            if scalar is not None:
+                return isinstance(value, scalar)
+            item = {Parameter.Type.BYTE_ARRAY: bytes, Parameter.Type.BOOL_ARRAY: bool,
+                    Parameter.Type.INTEGER_ARRAY: int, Parameter.Type.DOUBLE_ARRAY: float,
+                    Parameter.Type.STRING_ARRAY: str}[self]
+            return isinstance(value, (list, tuple)) and all(isinstance(v, item) for v in value)
+
+    def __init__(self, name: str, type_: "Parameter.Type | None" = None, value=None):
+        if type_ is None:
+            type_ = Parameter.Type.from_parameter_value(value)
+        if not isinstance(type_, Parameter.Type):
+            raise TypeError(f"type_ must be a Parameter.Type, got {type_!r}")
+        if not type_.check(value):
+            raise ValueError(f"Type {type_} and value {value} do not agree")
+        self._name, self._type, self._value = name, type_, value
 
     @property
-    def string_value(self):
-        return str(self.value)
+    def name(self) -> str:
+        return self._name
 
     @property
-    def integer_value(self):
-        return int(self.value)
+    def value(self):
+        return self._value
 
     @property
-    def double_value(self):
-        return float(self.value)
+    def type_(self) -> "Parameter.Type":
+        return self._type
 
-    @property
-    def bool_value(self):
-        return bool(self.value)
+    def get_parameter_value(self) -> "ParameterValue":
+        return ParameterValue.of(self._type, self._value)
+
+
+@dataclass
+class ParameterValue:
+    """rcl_interfaces.msg.ParameterValue: the field of the value's type is set, the others keep defaults."""
+
+    type: int = 0
+    bool_value: bool = False
+    integer_value: int = 0
+    double_value: float = 0.0
+    string_value: str = ""
+    byte_array_value: tuple = ()
+    bool_array_value: tuple = ()
+    integer_array_value: tuple = ()
+    double_array_value: tuple = ()
+    string_array_value: tuple = ()
+
+    @classmethod
+    def of(cls, type_: Parameter.Type, value) -> "ParameterValue":
+        if type_ == Parameter.Type.NOT_SET:
+            return cls()
+        return cls(**{"type": int(type_), f"{type_.name.lower()}_value": value})
+
+
+@dataclass
+class ParameterDescriptor:
+    """rcl_interfaces.msg.ParameterDescriptor, the fields the stand-in honours."""
+
+    name: str = ""
+    type: int = 0
+    description: str = ""
+    read_only: bool = False
+    dynamic_typing: bool = False
 
 
 class Clock:
@@ -276,7 +376,8 @@ class Node:
         self.publishers, self.subscriptions, self.timers = [], [], []
         self.services, self.clients = [], []
         self._parameters: dict[str, Parameter] = {}
-        self._overrides = {p.name: p.value for p in (parameter_overrides or [])}
+        self._descriptors: dict[str, ParameterDescriptor] = {}
+        self._overrides = {p.name: p for p in (parameter_overrides or [])}
         self._logger = logging.getLogger(node_name)
         self._clock = Clock()
 
@@ -320,17 +421,56 @@ class Node:
         self.clients.append(client)
         return client
 
-    def declare_parameter(self, name: str, value=None) -> Parameter:
+    def declare_parameter(self, name: str, value=None, descriptor: ParameterDescriptor | None = None,
+                          ignore_override: bool = False) -> Parameter:
+        """As rclpy: the type is static, from ``value`` (a default) or given as a ``Parameter.Type``; an override
+        (or a later set) of another type raises InvalidParameterTypeException. Without either the parameter
+        is dynamically typed (deprecated in rclpy, with a warning)."""
         if name in self._parameters:
             raise ParameterAlreadyDeclaredException(name)
-        param = Parameter(name, self._overrides.get(name, value))
-        self._parameters[name] = param
+        descriptor = ParameterDescriptor(name=name) if descriptor is None else descriptor
+        if isinstance(value, Parameter.Type):
+            if value == Parameter.Type.NOT_SET:
+                raise ValueError(f"Cannot declare parameter {{{name}}} as statically typed of type NOT_SET")
+            descriptor.type, value = int(value), None
+        elif value is None and not descriptor.dynamic_typing:
+            warnings.warn(f"when declaring parameter named '{name}', declaring a parameter only providing its name "
+                          "is deprecated", stacklevel=2)
+            descriptor.dynamic_typing = True
+        elif not descriptor.dynamic_typing:
+            descriptor.type = int(Parameter.Type.from_parameter_value(value))
+        if not ignore_override and name in self._overrides:
+            value = self._overrides[name].value
+        param = Parameter(name, value=value)  # NOT_SET until given when declared by type alone
+        self._check_type(param, descriptor)
+        self._parameters[name], self._descriptors[name] = param, descriptor
         return param
+
+    @staticmethod
+    def _check_type(param: Parameter, descriptor: ParameterDescriptor) -> None:
+        if (not descriptor.dynamic_typing and param.type_ != Parameter.Type.NOT_SET
+                and param.type_ != descriptor.type):
+            raise InvalidParameterTypeException(param, Parameter.Type(descriptor.type).name)
 
     def get_parameter(self, name: str) -> Parameter:
         if name not in self._parameters:
             raise ParameterNotDeclaredException(name)
-        return self._parameters[name]
+        param = self._parameters[name]
+        if param.type_ == Parameter.Type.NOT_SET and not self._descriptors[name].dynamic_typing:
+            raise ParameterUninitializedException(name)
+        return param
+
+    def set_parameters(self, parameters: list[Parameter]) -> list[bool]:
+        """Each parameter must be declared and of its static type (else the same exceptions as rclpy's)."""
+        for param in parameters:
+            if param.name not in self._parameters:
+                raise ParameterNotDeclaredException(param.name)
+            descriptor = self._descriptors[param.name]
+            if descriptor.read_only:
+                raise ParameterException(f"parameter '{param.name}' is read-only", param.name)
+            self._check_type(param, descriptor)
+            self._parameters[param.name] = param
+        return [True] * len(parameters)
 
     def has_parameter(self, name: str) -> bool:
         return name in self._parameters

@@ -27,7 +27,7 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nodes.ros import Node, latched, msgs, run_node
+from nodes.ros import Node, declare, latched, msgs, run_node
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import Attempt, score_attempt, strip_image, summarise, write_report
@@ -37,16 +37,18 @@ REST_S = 0.3  # after the attempt's end, before asking whether the object is in 
 SPAWN_CLEARANCE_M = 0.003  # the spawned object's lowest point above the floor
 
 
+PARAMETERS = (
+    ("host", "127.0.0.1"), ("library", ""), ("objects", "noodle_cup_red"), ("attempts", 20), ("seed", 0),
+    ("spawn_x", [-0.55, -0.38]), ("spawn_y", [-0.12, 0.12]), ("settle_s", 1.0), ("timeout_s", 60.0),
+    ("detect_timeout_s", 10.0),
+    ("hand_eye", [float(v) for v in np.eye(4).ravel()]), ("pose_source", "dope"), ("report", "out/sim_grasp"))
+
+
 class EvaluatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__("evaluator_node", **kwargs)
-        p = {name: self.declare_parameter(name, default).value for name, default in (
-            ("host", "127.0.0.1"), ("library", ""), ("objects", ["noodle_cup_red"]), ("attempts", 20), ("seed", 0),
-            ("spawn_x", [-0.55, -0.38]), ("spawn_y", [-0.12, 0.12]), ("settle_s", 1.0), ("timeout_s", 60.0),
-            ("detect_timeout_s", 10.0),
-            ("hand_eye", list(np.eye(4).ravel())), ("pose_source", "dope"), ("report", "out/sim_grasp"))}
-        if isinstance(p["objects"], str):
-            p["objects"] = [o.strip() for o in p["objects"].split(",") if o.strip()]
+        p = declare(self, PARAMETERS)
+        p["objects"] = [o.strip() for o in p["objects"].split(",") if o.strip()]
         if p["pose_source"] not in ("dope", "ground_truth"):
             raise PegasusError(f"evaluator_node: pose_source must be dope or ground_truth, got {p['pose_source']!r}")
         self.params = p

@@ -2,7 +2,8 @@
 
 Parameters: ``config`` (YAML path, may be empty), ``output``, ``scenes``, ``frames_per_scene``, ``width``,
 ``height``, ``device``, ``library``, ``environments`` and ``objects`` (YAML text, as the config keys) (empty /
-0: the config's), ``overrides`` (more key=value, as the CLI takes), ``resume``. Publishes
+0: the config's), ``overrides`` (more key=value items, as the CLI takes, in one string split like a shell
+line), ``resume``. Publishes
 ``generator/progress`` (String JSON: frames written, frames planned, state) once a second and, when the
 dataset is complete, its path on ``dataset`` (String, transient-local so late subscribers get it).
 """
@@ -10,28 +11,33 @@ dataset is complete, its path on ``dataset`` (String, transient-local so late su
 from __future__ import annotations
 
 import json
+import shlex
 from pathlib import Path
 
 from nodes.background import BackgroundJob
-from nodes.ros import Node, latched, msgs, run_node
+from nodes.ros import Node, declare, latched, msgs, run_node
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
+from pegasus_gen.errors import PegasusError
+
+PARAMETERS = (("config", ""), ("output", ""), ("scenes", 0), ("frames_per_scene", 0), ("width", 0), ("height", 0),
+              ("device", ""), ("library", ""), ("environments", ""), ("objects", ""), ("overrides", ""),
+              ("resume", False))
+CONFIG_KEYS = {"width": "camera.width", "height": "camera.height"}  # parameter -> config key, where they differ
 
 
 class GeneratorNode(Node):
     def __init__(self, **kwargs):
         super().__init__("generator_node", **kwargs)
-        config = self.declare_parameter("config", "").value
-        overrides = []
-        for name, key in (("output", "output"), ("scenes", "scenes"), ("frames_per_scene", "frames_per_scene"),
-                          ("width", "camera.width"), ("height", "camera.height"), ("device", "device"),
-                          ("library", "library"), ("environments", "environments"), ("objects", "objects")):
-            value = self.declare_parameter(name, "").value
-            if value not in ("", 0, None):
-                overrides.append(f"{key}={value}")
-        overrides += list(self.declare_parameter("overrides", []).value or [])
-        resume = bool(self.declare_parameter("resume", False).value)
-        self.cfg = load_config(config or None, overrides)
+        p = declare(self, PARAMETERS)
+        overrides = [f"{CONFIG_KEYS.get(name, name)}={p[name]}" for name, default in PARAMETERS
+                     if name not in ("config", "overrides", "resume") and p[name] != default]
+        try:
+            overrides += shlex.split(p["overrides"])
+        except ValueError as exc:  # an unclosed quote
+            raise PegasusError(f"generator_node: overrides {p['overrides']!r}: {exc}") from None
+        resume = p["resume"]
+        self.cfg = load_config(p["config"] or None, overrides)
         self.planned = self.cfg.scenes * self.cfg.frames_per_scene
         self.progress_pub = self.create_publisher(msgs.String, "generator/progress", 10)
         self.dataset_pub = self.create_publisher(msgs.String, "dataset", latched())

@@ -18,21 +18,22 @@ import numpy as np
 
 from dope_training.infer import DopeModel
 from dope_training.overlay import draw_poses
-from nodes.ros import Node, latched, msgs, run_node
+from nodes.ros import Node, declare, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
 PENDING_FRAMES = 4  # images or depth images kept while waiting for their partner
 
 
+PARAMETERS = (("model", ""), ("device", "cpu"), ("min_score", 0.1), ("max_images", 0), ("refine", False),
+              ("use_pose", "raw"))
+
+
 class InferenceNode(Node):
     def __init__(self, **kwargs):
         super().__init__("inference_node", **kwargs)
-        model = self.declare_parameter("model", "").value
-        self.device = self.declare_parameter("device", "cpu").value
-        self.min_score = float(self.declare_parameter("min_score", 0.1).value)
-        self.max_images = int(self.declare_parameter("max_images", 0).value)
-        self.refine = bool(self.declare_parameter("refine", False).value)
-        self.use_pose = self.declare_parameter("use_pose", "raw").value
+        p = declare(self, PARAMETERS)
+        model, self.device, self.min_score = p["model"], p["device"], p["min_score"]
+        self.max_images, self.refine, self.use_pose = p["max_images"], p["refine"], p["use_pose"]
         if self.use_pose not in ("raw", "refined"):
             raise PegasusError(f"inference_node: use_pose must be raw or refined, got {self.use_pose!r}")
         if self.use_pose == "refined" and not self.refine:

@@ -29,6 +29,15 @@ class LaunchConfiguration:
 
 
 @dataclass
+class ParameterValue:
+    """launch_ros.parameter_descriptions.ParameterValue: ``value`` (a LaunchConfiguration or a literal) coerced
+    to ``value_type`` (str, int, float, bool or typing.List of one of them; None: YAML rules)."""
+
+    value: object
+    value_type: object = None
+
+
+@dataclass
 class DeclareLaunchArgument:
     name: str
     default_value: str | None = None
@@ -119,30 +128,78 @@ def resolve_arguments(description: LaunchDescription, overrides: dict[str, str])
     return values
 
 
-def _substitute(value, arguments: dict[str, str]):
-    if isinstance(value, LaunchConfiguration):
-        return _typed(arguments[value.variable_name])
-    if isinstance(value, list):
-        return [_substitute(v, arguments) for v in value]
+def parameter_value(name: str, value, arguments: dict[str, str]):
+    """A Node action's parameter value as launch_ros evaluates it (``evaluate_parameter_dict``): a launch
+    argument's text by YAML rules ('' stays a string; a list must be non-empty and of one type: a tuple);
+    a ParameterValue coerced to its type as launch's ``coerce_to_type`` does (int and float from the text,
+    lists by YAML with items of exactly that type); literal lists of numbers become floats."""
+    try:
+        if isinstance(value, ParameterValue):
+            inner = value.value
+            if not isinstance(inner, LaunchConfiguration):
+                return parameter_value(name, inner, arguments)
+            return _coerce(arguments[inner.variable_name], value.value_type)
+        if isinstance(value, LaunchConfiguration):
+            return _yaml_value(arguments[value.variable_name])
+        if isinstance(value, (list, tuple)):
+            if value and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+                return tuple(float(v) for v in value)
+            if not value or not all(type(v) is type(value[0]) and type(v) in (bool, str) for v in value):
+                raise ValueError("expected a non-empty list of one type (bool, int, float or str)")
+            return tuple(value)
+        if isinstance(value, (bool, int, float, str)):
+            return value
+        raise ValueError(f"a {type(value).__name__} is not a parameter value")
+    except ValueError as exc:
+        raise PegasusError(f"launch: parameter {name}: {exc}") from None
+
+
+def _yaml_value(text: str):
+    import yaml
+
+    if text == "":
+        return ""
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise ValueError(f"{text!r} is not YAML; a string parameter needs ParameterValue(..., value_type=str)")
+    if type(value) in (bool, int, float, str):
+        return value
+    if isinstance(value, list) and value and type(value[0]) in (bool, int, float, str) \
+            and all(type(v) is type(value[0]) for v in value):
+        return tuple(value)
+    raise ValueError(f"{text!r} is neither a scalar nor a non-empty list of one type (bool, int, float, str)")
+
+
+def _coerce(text: str, value_type):
+    import typing
+
+    if value_type is None:
+        return _yaml_value(text)
+    is_list = typing.get_origin(value_type) in (list, typing.List)
+    item = typing.get_args(value_type)[0] if is_list else value_type
+    if item not in (str, int, float, bool):
+        raise ValueError(f"value_type must be str, int, float, bool or a List of one, got {value_type}")
+    if is_list:
+        import yaml
+
+        value = yaml.safe_load(text) if text else text
+        if not isinstance(value, list) or not all(isinstance(v, item) for v in value):
+            raise ValueError(f"cannot convert {text!r} to a list of {item.__name__}")
+        return tuple(value)
+    if item is str:
+        return text
+    if item in (int, float):
+        return item(text)
+    value = _yaml_value(text)
+    if not isinstance(value, bool):
+        raise ValueError(f"cannot convert {text!r} to bool")
     return value
-
-
-def _typed(text: str):
-    """Launch arguments are strings; parameters get int, float or bool when the text is one."""
-    lowered = text.strip().lower()
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
 
 
 def build_nodes(description: LaunchDescription, arguments: dict[str, str], context=None) -> list:
     """The node objects of the description's Node actions, constructed with their parameters."""
-    from nodes.compat import Parameter
+    from nodes.compat import Parameter, ParameterException
 
     built = []
     for entity in description.entities:
@@ -154,12 +211,15 @@ def build_nodes(description: LaunchDescription, arguments: dict[str, str], conte
             raise PegasusError(f"launch: no node executable {entity.executable!r} (nodes.{entity.executable})") from exc
         params = {}
         for group in entity.parameters:
-            params.update({k: _substitute(v, arguments) for k, v in group.items()})
-        overrides = [Parameter(k, v) for k, v in params.items()]
+            params.update({k: parameter_value(k, v, arguments) for k, v in group.items()})
+        overrides = [Parameter(k, value=v) for k, v in params.items()]
         kwargs = {"parameter_overrides": overrides}
         if context is not None:
             kwargs["context"] = context
-        built.append(module.NODE_CLASS(**kwargs))
+        try:
+            built.append(module.NODE_CLASS(**kwargs))
+        except ParameterException as exc:  # a parameter of another type than the node declares
+            raise PegasusError(f"launch: {entity.executable}: {exc}") from None
     return built
 
 

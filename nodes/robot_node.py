@@ -7,13 +7,13 @@ included), the estimate is checked (``robot_bridge.plausibility``: the object re
 reach), the grasp is planned from the home joints' TCP pose (forward kinematics; the arm is not moved to
 get it) and the plan is checked (no fingertip in the table); a refusal sends nothing and ends the attempt
 as failed with the detail "implausible estimate: " and the reason. Only then the arm moves home and on.
-Parameters: ``host``; ``hand_eye`` (T_base_cam, 16 numbers row-major); ``basket`` (floor centre x y z, base
-frame); ``table_z`` (the table top's height, m, base frame); ``bbox_min``/``bbox_size`` (the object's model
-box, m) and ``symmetry_axis`` (object frame; [] for none); ``execute`` = pick (the whole pick-and-place)
-or pregrasp (stop above the object); ``home`` (joints, rad: each attempt starts there); ``speed``; ``dry_run``;
-``wait_for_attempt`` (act only once per message on ``attempt``, as evaluator_node sends them; the status
-carries that attempt's number). Poses arriving while it moves are ignored. ``results``: per attempt,
-picked, missed, pregrasp, implausible or failed.
+Parameters (``PARAMETERS``, each typed by its default): ``host``; ``hand_eye`` (T_base_cam, 16 floats
+row-major); ``basket`` (floor centre x y z, base frame); ``table_z`` (the table top's height, m, base frame);
+``bbox_min``/``bbox_size`` (the object's model box, m) and ``symmetry_axis`` (object frame; 0 0 0 for none);
+``execute`` = pick (the whole pick-and-place) or pregrasp (stop above the object); ``home`` (joints, rad: each
+attempt starts there); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per message on ``attempt``,
+as evaluator_node sends them; the status carries that attempt's number). Poses arriving while it moves are
+ignored. ``results``: per attempt, picked, missed, pregrasp, implausible or failed.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import threading
 
 import numpy as np
 
-from nodes.ros import Node, latched, msgs, run_node
+from nodes.ros import Node, declare, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import IMPLAUSIBLE_DETAIL
 from robot_bridge.bridge import UR5, BridgeConfig
@@ -33,21 +33,20 @@ from robot_bridge.pick import pick_and_place
 from robot_bridge.plausibility import plan_problem, pose_problem
 from robot_bridge.safety import SafetyEnvelope
 
+PARAMETERS = (
+    ("host", "127.0.0.1"), ("hand_eye", [float(v) for v in np.eye(4).ravel()]), ("basket", [-0.15, -0.45, 0.0]),
+    ("table_z", 0.0),
+    ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
+    ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),
+    ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]))
+
 
 class RobotNode(Node):
     def __init__(self, **kwargs):
         super().__init__("robot_node", **kwargs)
-        p = {name: self.declare_parameter(name, default).value for name, default in (
-            ("host", "127.0.0.1"), ("hand_eye", list(np.eye(4).ravel())), ("basket", [-0.15, -0.45, 0.0]),
-            ("table_z", 0.0),
-            ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
-            ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),
-            ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]))}
+        p = declare(self, PARAMETERS)
         if p["execute"] not in ("pick", "pregrasp"):
             raise PegasusError(f"robot_node: execute must be pick or pregrasp, got {p['execute']!r}")
-        for name in ("hand_eye", "basket"):  # launch arguments arrive as text: "1 0 0 0.2 ..."
-            if isinstance(p[name], str):
-                p[name] = [float(v) for v in p[name].replace(",", " ").split()]
         if len(p["hand_eye"]) != 16 or len(p["basket"]) != 3:
             raise PegasusError("robot_node: hand_eye needs 16 numbers (T_base_cam row-major), basket 3 (x y z)")
         self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
@@ -113,7 +112,7 @@ class RobotNode(Node):
             if reason is not None:
                 return self._refuse(reason)
             self._connect()
-            axis = p["symmetry_axis"] if len(p["symmetry_axis"]) == 3 else None
+            axis = p["symmetry_axis"] if any(p["symmetry_axis"]) else None
             plan = plan_grasp(T_cam_obj, self.T_base_cam, p["bbox_min"], p["bbox_size"], p["basket"][:2],
                               p["basket"][2] + 0.006, self._home_tcp(), axis=axis, table_z=p["table_z"],
                               envelope=self.robot.config.envelope)

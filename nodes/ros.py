@@ -43,6 +43,13 @@ def latched(depth: int = 1):
     return QoSProfile(depth=depth, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def declare(node, parameters: tuple) -> dict:
+    """{name: value} of ``parameters`` ((name, default), ...) declared on ``node``, each statically typed by its
+    default as rclpy does (a float parameter refuses an int, an array parameter a string): a node module's
+    ``PARAMETERS`` table, which tests check the launch files against."""
+    return {name: node.declare_parameter(name, default).value for name, default in parameters}
+
+
 def run_node(node_class, args=None) -> None:
     """init, spin one node until shutdown or Ctrl-C, clean up: each node module's ``main``."""
     rclpy.init(args=args)
@@ -56,6 +63,5 @@ def run_node(node_class, args=None) -> None:
         rclpy.shutdown()
 
 
-__all__ = ["run_node", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor",
-           "Parameter", "msgs",
-           "REAL_ROS"]
+__all__ = ["run_node", "declare", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor",
+           "SingleThreadedExecutor", "Parameter", "msgs", "REAL_ROS"]

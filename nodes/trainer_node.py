@@ -16,15 +16,17 @@ from dope_training.export import export_checkpoint
 from dope_training.train import TrainConfig, read_losses, train
 from dope_training.train_config import parse_options
 from nodes.background import BackgroundJob
-from nodes.ros import Node, latched, msgs, run_node
+from nodes.ros import Node, declare, latched, msgs, run_node
+
+PARAMETERS = (
+    ("data", ""), ("object", ""), ("out", "runs/dope"), ("variant", "light"), ("epochs", 10),
+    ("batch_size", 8), ("size", 0), ("device", "auto"), ("loader_workers", 2), ("options", ""))
 
 
 class TrainerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("trainer_node", **kwargs)
-        p = {name: self.declare_parameter(name, default).value for name, default in (
-            ("data", ""), ("object", ""), ("out", "runs/dope"), ("variant", "light"), ("epochs", 10),
-            ("batch_size", 8), ("size", 0), ("device", "auto"), ("loader_workers", 2), ("options", ""))}
+        p = declare(self, PARAMETERS)
         self.params = p
         self.job = None
         self.progress_pub = self.create_publisher(msgs.String, "trainer/progress", 10)

@@ -24,8 +24,9 @@ def run_inference(onnx_path, frame, depth_m: np.ndarray, use_pose: str) -> dict:
     """{topic: first PoseStamped received} after one image + depth + camera_info, within 60 s."""
     compat.init()
     try:
-        inference = InferenceNode(parameter_overrides=[Parameter("model", str(onnx_path)), Parameter("refine", True),
-                                                       Parameter("use_pose", use_pose)])
+        inference = InferenceNode(parameter_overrides=[Parameter("model", value=str(onnx_path)),
+                                                       Parameter("refine", value=True),
+                                                       Parameter("use_pose", value=use_pose)])
         feeder = Node("feeder")
         image_pub = feeder.create_publisher(msgs.Image, "image", 5)
         depth_pub = feeder.create_publisher(msgs.Image, "depth", 5)

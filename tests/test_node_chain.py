@@ -63,14 +63,14 @@ def test_camera_inference_robot_chain_sends_the_robot_to_the_pregrasp(dope_datas
         compat.init()
         try:
             nodes = [
-                CameraNode(parameter_overrides=[Parameter("folder", str(images)), Parameter("rate", 2.0),
-                                                Parameter("fx", K[0, 0]), Parameter("fy", K[1, 1]),
-                                                Parameter("cx", K[0, 2]), Parameter("cy", K[1, 2])]),
-                InferenceNode(parameter_overrides=[Parameter("model", str(onnx_path))]),
-                RobotNode(parameter_overrides=[Parameter("host", host), Parameter("execute", "pregrasp"),
-                                               Parameter("hand_eye", T_base_cam.ravel().tolist()),
-                                               Parameter("bbox_min", list(model.object.bbox_min)),
-                                               Parameter("bbox_size", list(model.object.bbox_size))]),
+                CameraNode(parameter_overrides=[Parameter("folder", value=str(images)), Parameter("rate", value=2.0),
+                                                Parameter("fx", value=K[0, 0]), Parameter("fy", value=K[1, 1]),
+                                                Parameter("cx", value=K[0, 2]), Parameter("cy", value=K[1, 2])]),
+                InferenceNode(parameter_overrides=[Parameter("model", value=str(onnx_path))]),
+                RobotNode(parameter_overrides=[Parameter("host", value=host), Parameter("execute", value="pregrasp"),
+                                               Parameter("hand_eye", value=T_base_cam.ravel().tolist()),
+                                               Parameter("bbox_min", value=list(model.object.bbox_min)),
+                                               Parameter("bbox_size", value=list(model.object.bbox_size))]),
             ]
             executor = compat.MultiThreadedExecutor()
             for node in nodes:

@@ -177,8 +177,9 @@ def test_robot_node_sends_nothing_for_an_implausible_estimate_and_moves_for_a_pl
         compat.init()
         robot = probe = None
         try:
-            robot = RobotNode(parameter_overrides=[Parameter("host", host), Parameter("execute", "pregrasp"),
-                                                   Parameter("hand_eye", T_BASE_CAM.ravel().tolist())])
+            robot = RobotNode(parameter_overrides=[Parameter("host", value=host),
+                                                   Parameter("execute", value="pregrasp"),
+                                                   Parameter("hand_eye", value=T_BASE_CAM.ravel().tolist())])
             probe = compat.Node("probe")
             statuses = []
             probe.create_subscription(msgs.String, "robot_status", lambda m: statuses.append(json.loads(m.data)), 10)

@@ -41,7 +41,7 @@ class Listener(Node):
 def test_publisher_subscriber_timer_service_and_parameters(executor_type):
     rclpy.init()
     try:
-        talker = Talker(parameter_overrides=[Parameter("greeting", "hi")])
+        talker = Talker(parameter_overrides=[Parameter("greeting", value="hi")])
         listener = Listener()
         executor = executor_type()
         executor.add_node(talker)
@@ -95,3 +95,37 @@ def test_image_and_pose_conversions_round_trip():
     T[:3, :3] = Rotation.random(random_state=1).as_matrix()
     T[:3, 3] = [0.1, -0.2, 0.7]
     np.testing.assert_allclose(msgs.pose_to_matrix(msgs.matrix_to_pose(T)), T, atol=1e-12)
+
+
+def test_parameters_are_statically_typed_as_in_rclpy():
+    from nodes.compat import (
+        InvalidParameterTypeException,
+        ParameterNotDeclaredException,
+        ParameterUninitializedException,
+        ParameterValue,
+    )
+
+    T = Parameter.Type
+    assert [T.from_parameter_value(v) for v in (None, True, 1, 1.0, "a", [], [1.0], ("a",), [b"x"])] == \
+        [T.NOT_SET, T.BOOL, T.INTEGER, T.DOUBLE, T.STRING, T.BYTE_ARRAY, T.DOUBLE_ARRAY, T.STRING_ARRAY, T.BYTE_ARRAY]
+    with pytest.raises(ValueError):
+        Parameter("rate", T.DOUBLE, 5)  # the type and the value must agree
+    with pytest.raises(TypeError):
+        Parameter("mixed", value=[1, "a"])
+    node = Node("typed", parameter_overrides=[Parameter("rate", value=5), Parameter("scale", value=2.0),
+                                              Parameter("axis", value=[])])
+    with pytest.raises(InvalidParameterTypeException, match="'rate' to '5' of type 'INTEGER', expecting type 'DOUBLE'"):
+        node.declare_parameter("rate", 1.0)  # an int override of a double parameter
+    assert node.declare_parameter("scale", 1.0).value == 2.0
+    with pytest.raises(InvalidParameterTypeException, match="BYTE_ARRAY"):
+        node.declare_parameter("axis", [0.0, 0.0, 1.0])  # an empty list is a byte array
+    node.declare_parameter("name", T.STRING)  # by type alone: declared, not initialised
+    with pytest.raises(ParameterUninitializedException):
+        node.get_parameter("name")
+    with pytest.raises(InvalidParameterTypeException):
+        node.set_parameters([Parameter("scale", value="big")])
+    node.set_parameters([Parameter("name", value="cup"), Parameter("scale", value=3.0)])
+    assert node.get_parameter("name").value == "cup" and node.get_parameter("scale").value == 3.0
+    assert node.get_parameter("scale").get_parameter_value() == ParameterValue(type=3, double_value=3.0)
+    with pytest.raises(ParameterNotDeclaredException):
+        node.set_parameters([Parameter("undeclared", value=1)])
