@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nodes.conversions import numpy_to_image
 from nodes.ros import Node, declare, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
@@ -182,8 +183,8 @@ class CameraNode(Node):
         info = msgs.CameraInfo(header=header, height=h, width=w)
         info.k = self.camera_matrix(w, h).ravel().tolist()
         if depth is not None:
-            self.depth_pub.publish(msgs.numpy_to_image(depth, "32FC1", msgs.Image, header))
-        self.image_pub.publish(msgs.numpy_to_image(image, "rgb8", msgs.Image, header))
+            self.depth_pub.publish(numpy_to_image(depth, "32FC1", header))
+        self.image_pub.publish(numpy_to_image(image, "rgb8", header))
         self.info_pub.publish(info)
         self.frames += 1
 

@@ -27,6 +27,7 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from nodes.conversions import image_to_numpy, matrix_to_pose, pose_to_matrix
 from nodes.ros import Node, declare, latched, msgs, run_node
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
@@ -145,7 +146,7 @@ class EvaluatorNode(Node):
         """The true pose in the camera frame, streamed like an estimator's (pose_source ground_truth)."""
         self.truth_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera",
                                                                    stamp=self.get_clock().now().to_msg()),
-                                                pose=msgs.matrix_to_pose(self.current.T_cam_obj, msgs.Pose)))
+                                                pose=matrix_to_pose(self.current.T_cam_obj)))
 
     # -- subscriptions -----------------------------------------------------------------------------------
     def this_attempts(self, msg) -> bool:
@@ -156,15 +157,15 @@ class EvaluatorNode(Node):
 
     def on_pose(self, msg) -> None:
         if self.this_attempts(msg) and self.current.estimate is None:
-            self.current.estimate = msgs.pose_to_matrix(msg.pose)
+            self.current.estimate = pose_to_matrix(msg.pose)
 
     def on_overlay(self, msg) -> None:
         if self.this_attempts(msg) and self.current.overlay is None:
-            self.current.overlay = msgs.image_to_numpy(msg)
+            self.current.overlay = image_to_numpy(msg)
 
     def on_image(self, msg) -> None:
         if self.this_attempts(msg) and self.current.image is None:
-            self.current.image = msgs.image_to_numpy(msg)
+            self.current.image = image_to_numpy(msg)
 
     def on_info(self, msg) -> None:
         self.K = np.array(msg.k, dtype=np.float64).reshape(3, 3)

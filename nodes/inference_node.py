@@ -18,6 +18,7 @@ import numpy as np
 
 from dope_training.infer import DopeModel
 from dope_training.overlay import draw_poses
+from nodes.conversions import image_to_numpy, matrix_to_pose, numpy_to_image
 from nodes.ros import Node, declare, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
@@ -75,7 +76,7 @@ class InferenceNode(Node):
         entry[kind] = msg
         if len(entry) == 2:
             del self.pending[stamp]
-            depth = msgs.image_to_numpy(entry["depth"]).astype(np.float64)
+            depth = image_to_numpy(entry["depth"]).astype(np.float64)
             self.process(entry["image"], depth / 1000.0 if entry["depth"].encoding == "16UC1" else depth)
         for old in sorted(self.pending)[:-PENDING_FRAMES]:
             del self.pending[old]
@@ -84,7 +85,7 @@ class InferenceNode(Node):
         """Estimate, refine (with ``depth_m`` [H, W] metres) and publish the poses of one image."""
         if self.K is None or self.model is None:
             return  # no camera_info or no model yet
-        image = msgs.image_to_numpy(msg)
+        image = image_to_numpy(msg)
         poses = self.model.estimate(image, self.K, min_score=self.min_score, depth_m=depth_m)
         self.images += 1
         obj = self.model.object
@@ -93,17 +94,17 @@ class InferenceNode(Node):
             T = pose.refined if pose.refined is not None else pose.T
             hypothesis = msgs.ObjectHypothesisWithPose()
             hypothesis.hypothesis.class_id, hypothesis.hypothesis.score = obj.name, pose.score
-            hypothesis.pose.pose = msgs.matrix_to_pose(T, msgs.Pose)
+            hypothesis.pose.pose = matrix_to_pose(T)
             detection = msgs.Detection3D(header=msg.header, results=[hypothesis], id=obj.name)
-            detection.bbox.center = msgs.matrix_to_pose(T, msgs.Pose)
+            detection.bbox.center = matrix_to_pose(T)
             detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = (float(v) for v in obj.bbox_size)
             array.detections.append(detection)
         self.detections_pub.publish(array)
         overlay = draw_poses(image, self.K, poses, obj)
-        self.overlay_pub.publish(msgs.numpy_to_image(overlay, "rgb8", msgs.Image, msg.header))
+        self.overlay_pub.publish(numpy_to_image(overlay, "rgb8", msg.header))
         best = {"raw": next((p.T for p in poses if p.T is not None), None),
                 "refined": next((p.refined for p in poses if p.refined is not None), None)}
-        stamped = {name: msgs.PoseStamped(header=msg.header, pose=msgs.matrix_to_pose(T, msgs.Pose))
+        stamped = {name: msgs.PoseStamped(header=msg.header, pose=matrix_to_pose(T))
                    for name, T in best.items() if T is not None}
         for name, publisher in (("raw", self.raw_pub), ("refined", self.refined_pub)):
             if name in stamped:

@@ -1,15 +1,11 @@
 """Message types for the stand-in layer, field for field as their ROS 2 definitions (std_msgs, sensor_msgs,
-geometry_msgs, vision_msgs, builtin_interfaces, std_srvs), with numpy payloads, and conversions:
-images <-> numpy arrays, poses <-> 4x4 matrices. ``nodes.ros`` exports the real ROS 2 types instead
-when rclpy is installed; the conversion functions work on either.
+geometry_msgs, vision_msgs, builtin_interfaces, std_srvs). ``nodes.ros`` exports the real ROS 2 types
+instead when rclpy is installed; ``nodes.conversions`` converts either to and from numpy.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
-import numpy as np
-from scipy.spatial.transform import Rotation
 
 
 @dataclass
@@ -146,49 +142,3 @@ class Trigger:  # std_srvs/Trigger
     class Response:
         success: bool = False
         message: str = ""
-
-
-# -- conversions ------------------------------------------------------------------------------------------
-ENCODINGS = {"rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "mono8": (np.uint8, 1), "mono16": (np.uint16, 1),
-             "16UC1": (np.uint16, 1), "32FC1": (np.float32, 1)}
-
-
-def numpy_to_image(array: np.ndarray, encoding: str, msg_type=Image, header=None):
-    """An Image message (of ``msg_type``: ours or sensor_msgs.msg.Image) holding ``array`` [H, W(, C)]."""
-    dtype, channels = ENCODINGS[encoding]
-    array = np.ascontiguousarray(array, dtype=dtype)
-    if array.ndim != (2 if channels == 1 else 3) or (channels > 1 and array.shape[2] != channels):
-        raise ValueError(f"an image of shape {array.shape} is not {encoding}")
-    msg = msg_type()
-    if header is not None:
-        msg.header = header
-    msg.height, msg.width, msg.encoding = array.shape[0], array.shape[1], encoding
-    msg.is_bigendian, msg.step = 0, array.shape[1] * channels * array.itemsize
-    msg.data = array.tobytes()
-    return msg
-
-
-def image_to_numpy(msg) -> np.ndarray:
-    """[H, W(, C)] array of an Image message (a copy)."""
-    dtype, channels = ENCODINGS[msg.encoding]
-    flat = np.frombuffer(bytes(msg.data), dtype=dtype)
-    shape = (msg.height, msg.width) if channels == 1 else (msg.height, msg.width, channels)
-    return flat.reshape(shape).copy()
-
-
-def matrix_to_pose(T: np.ndarray, msg_type=Pose):
-    """A Pose (of ``msg_type``) from T [4, 4]."""
-    msg = msg_type()
-    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
-    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in T[:3, 3])
-    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = float(x), float(y), float(z), float(w)
-    return msg
-
-
-def pose_to_matrix(pose) -> np.ndarray:
-    """T [4, 4] from a Pose message."""
-    T = np.eye(4)
-    o = pose.orientation
-    T[:3, :3] = Rotation.from_quat([o.x, o.y, o.z, o.w]).as_matrix()
-    T[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
-    return T

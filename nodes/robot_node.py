@@ -23,6 +23,7 @@ import threading
 
 import numpy as np
 
+from nodes.conversions import pose_to_matrix
 from nodes.ros import Node, declare, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import IMPLAUSIBLE_DETAIL
@@ -104,7 +105,7 @@ class RobotNode(Node):
         try:
             self.status("planning")
             try:
-                T_cam_obj = msgs.pose_to_matrix(pose)
+                T_cam_obj = pose_to_matrix(pose)
             except ValueError:  # scipy: a zero-norm (or not finite) quaternion
                 return self._refuse("the pose's quaternion is not a rotation")
             reason = pose_problem(self.T_base_cam @ T_cam_obj, p["bbox_min"], p["bbox_size"], p["table_z"],

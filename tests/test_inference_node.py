@@ -12,6 +12,7 @@ import pytest
 from dope_training.export import export_checkpoint
 from nodes import compat
 from nodes.compat import Parameter
+from nodes.conversions import numpy_to_image, pose_to_matrix
 from nodes.inference_node import InferenceNode
 from nodes.ros import REAL_ROS, Node, msgs
 from pegasus_gen.dataset.bop import bop_frames
@@ -44,8 +45,8 @@ def run_inference(onnx_path, frame, depth_m: np.ndarray, use_pose: str) -> dict:
         info.k = frame.K.ravel().tolist()
         info_pub.publish(info)
         executor.spin_once(timeout_sec=0.1)
-        depth_pub.publish(msgs.numpy_to_image(depth_m.astype(np.float32), "32FC1", msgs.Image, header))
-        image_pub.publish(msgs.numpy_to_image(image, "rgb8", msgs.Image, header))
+        depth_pub.publish(numpy_to_image(depth_m.astype(np.float32), "32FC1", header))
+        image_pub.publish(numpy_to_image(image, "rgb8", header))
         t0 = time.monotonic()
         while inference.images < 1 and time.monotonic() - t0 < 60:
             executor.spin_once(timeout_sec=0.05)
@@ -65,9 +66,9 @@ def test_inference_node_publishes_raw_and_refined_poses(dope_dataset, overfit_do
 
     got = run_inference(onnx_path, frame, frame.read_depth(), "refined")
     assert set(got) == set(TOPICS)
-    refined = msgs.pose_to_matrix(got["object_pose_refined"].pose)
+    refined = pose_to_matrix(got["object_pose_refined"].pose)
     assert np.linalg.norm(truths - refined[:3, 3], axis=1).min() < 0.005
-    np.testing.assert_allclose(msgs.pose_to_matrix(got["object_pose"].pose), refined, atol=1e-9)
+    np.testing.assert_allclose(pose_to_matrix(got["object_pose"].pose), refined, atol=1e-9)
 
     got = run_inference(onnx_path, frame, np.zeros_like(frame.read_depth()), "refined")  # no depth support
     assert set(got) == {"object_pose_raw"}  # DOPE's pose is reported, the robot gets nothing

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from nodes import compat
 from nodes.compat import Parameter
+from nodes.conversions import matrix_to_pose
 from nodes.ros import REAL_ROS, msgs
 from pegasus_gen.geometry.cameras import look_at
 from robot_bridge.attempts import FailureCause, failure_cause
@@ -189,8 +190,8 @@ def test_robot_node_sends_nothing_for_an_implausible_estimate_and_moves_for_a_pl
             executor.add_node(probe)
 
             def send(T_base_obj):
-                pose_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera"), pose=msgs.matrix_to_pose(
-                    np.linalg.inv(T_BASE_CAM) @ T_base_obj, msgs.Pose)))
+                pose_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera"), pose=matrix_to_pose(
+                    np.linalg.inv(T_BASE_CAM) @ T_base_obj)))
 
             q0 = np.array(receive.getActualQ())
             np.testing.assert_allclose(q0, HOME_Q, atol=1e-9)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from nodes.conversions import image_to_numpy, matrix_to_pose, numpy_to_image, pose_to_matrix
 from nodes.ros import REAL_ROS, MultiThreadedExecutor, Node, Parameter, SingleThreadedExecutor, msgs, rclpy
 
 pytestmark = pytest.mark.skipif(REAL_ROS, reason="these test the stand-in; with ROS 2 the real rclpy is used")
@@ -84,17 +85,26 @@ def test_keep_last_depth_drops_the_oldest_and_publish_checks_the_type():
 def test_image_and_pose_conversions_round_trip():
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)
-    msg = msgs.numpy_to_image(rgb, "rgb8")
+    msg = numpy_to_image(rgb, "rgb8")
     assert (msg.height, msg.width, msg.step) == (4, 6, 18)
-    np.testing.assert_array_equal(msgs.image_to_numpy(msg), rgb)
+    np.testing.assert_array_equal(image_to_numpy(msg), rgb)
     depth = rng.random((4, 6)).astype(np.float32)
-    np.testing.assert_array_equal(msgs.image_to_numpy(msgs.numpy_to_image(depth, "32FC1")), depth)
+    np.testing.assert_array_equal(image_to_numpy(numpy_to_image(depth, "32FC1")), depth)
     with pytest.raises(ValueError):
-        msgs.numpy_to_image(rgb, "mono8")
+        numpy_to_image(rgb, "mono8")
+    # a driver's image: rows padded to 8 bytes, big-endian 16-bit depth
+    mm = rng.integers(0, 5000, (3, 5), dtype=np.uint16)
+    padded = np.zeros((3, 16), np.uint8)
+    padded[:, :10] = mm.astype(">u2").view(np.uint8).reshape(3, 10)
+    msg = msgs.Image(height=3, width=5, encoding="16UC1", is_bigendian=1, step=16, data=padded.tobytes())
+    np.testing.assert_array_equal(image_to_numpy(msg), mm)
+    msg.step = 8  # shorter than a row
+    with pytest.raises(ValueError, match="does not hold"):
+        image_to_numpy(msg)
     T = np.eye(4)
     T[:3, :3] = Rotation.random(random_state=1).as_matrix()
     T[:3, 3] = [0.1, -0.2, 0.7]
-    np.testing.assert_allclose(msgs.pose_to_matrix(msgs.matrix_to_pose(T)), T, atol=1e-12)
+    np.testing.assert_allclose(pose_to_matrix(matrix_to_pose(T)), T, atol=1e-12)
 
 
 def test_parameters_are_statically_typed_as_in_rclpy():
