@@ -5,14 +5,21 @@ pegasus launch launch/generate_train_deploy.launch.py object:=noodle_cup_red ima
 """
 
 try:
-    from launch.actions import DeclareLaunchArgument
+    from launch.actions import DeclareLaunchArgument, Shutdown
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
     from launch_ros.parameter_descriptions import ParameterValue
 
     from launch import LaunchDescription
 except ImportError:
-    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, ParameterValue
+    from nodes.launch import (
+        DeclareLaunchArgument,
+        LaunchConfiguration,
+        LaunchDescription,
+        Node,
+        ParameterValue,
+        Shutdown,
+    )
 
 
 def generate_launch_description():
@@ -38,17 +45,17 @@ def generate_launch_description():
         DeclareLaunchArgument("images", default_value="out/loop/dataset/train_pbr/000000/rgb",
                               description="images the camera node plays"),
         DeclareLaunchArgument("max_images", default_value="0", description="> 0: stop after this many inferences"),
-        Node(package="pegasus", executable="generator_node", parameters=[{
+        Node(package="pegasus", executable="generator_node", on_exit=Shutdown(), parameters=[{
             "config": arg("config"), "output": arg("output"), "scenes": arg("scenes"),
             "frames_per_scene": arg("frames"), "width": arg("width"), "height": arg("height"), "device": arg("device"),
             "library": arg("library"), "environments": ParameterValue(arg("environments"), value_type=str),
             "objects": ParameterValue(arg("objects_config"), value_type=str)}]),
-        Node(package="pegasus", executable="trainer_node", parameters=[{
+        Node(package="pegasus", executable="trainer_node", on_exit=Shutdown(), parameters=[{
             "object": arg("object"), "out": arg("run"), "variant": arg("variant"), "epochs": arg("epochs"),
             "size": arg("size"), "device": arg("device"),
             "options": ParameterValue(arg("train_options"), value_type=str)}]),
         Node(package="pegasus", executable="camera_node", parameters=[{"folder": arg("images"), "rate": 1.0,
                                                                         "wait_for_folder": True}]),
-        Node(package="pegasus", executable="inference_node", parameters=[{"device": "cpu",
+        Node(package="pegasus", executable="inference_node", on_exit=Shutdown(), parameters=[{"device": "cpu",
                                                                            "max_images": arg("max_images")}]),
     ])

@@ -14,14 +14,21 @@ import numpy as np
 from pegasus_gen.geometry.cameras import look_at
 
 try:
-    from launch.actions import DeclareLaunchArgument
+    from launch.actions import DeclareLaunchArgument, Shutdown
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
     from launch_ros.parameter_descriptions import ParameterValue
 
     from launch import LaunchDescription
 except ImportError:
-    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, ParameterValue
+    from nodes.launch import (
+        DeclareLaunchArgument,
+        LaunchConfiguration,
+        LaunchDescription,
+        Node,
+        ParameterValue,
+        Shutdown,
+    )
 
 T_WORLD_BASE = np.array([[1.0, 0, 0, 0.45], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
 T_WORLD_CAM = np.linalg.inv(look_at([0.0, -0.35, 0.55], [0.0, 0.0, 0.0]))
@@ -46,7 +53,7 @@ def generate_launch_description():
         DeclareLaunchArgument("report", default_value="out/sim_grasp"),
         DeclareLaunchArgument("seed", default_value="0"),
         DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
-        Node(package="pegasus", executable="sim_controller_node", parameters=[{
+        Node(package="pegasus", executable="sim_controller_node", on_exit=Shutdown(), parameters=[{
             "host": arg("host"), "time_scale": ParameterValue(arg("time_scale"), value_type=float),
             "basket": BASKET}]),
         Node(package="pegasus", executable="camera_node", parameters=[{
@@ -58,7 +65,7 @@ def generate_launch_description():
         Node(package="pegasus", executable="robot_node", parameters=[{
             "host": arg("host"), "hand_eye": T_BASE_CAM.ravel().tolist(), "basket": BASKET,
             "wait_for_attempt": True, "speed": 0.3}]),
-        Node(package="pegasus", executable="evaluator_node", parameters=[{
+        Node(package="pegasus", executable="evaluator_node", on_exit=Shutdown(), parameters=[{
             "host": arg("host"), "library": arg("library"), "objects": ParameterValue(arg("objects"), value_type=str),
             "attempts": arg("attempts"),
             "seed": arg("seed"), "hand_eye": T_BASE_CAM.ravel().tolist(), "report": arg("report"),

@@ -11,14 +11,21 @@ write every number with a decimal point (1.0, not 1), as launch_ros reads them a
 import typing
 
 try:
-    from launch.actions import DeclareLaunchArgument
+    from launch.actions import DeclareLaunchArgument, Shutdown
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
     from launch_ros.parameter_descriptions import ParameterValue
 
     from launch import LaunchDescription
 except ImportError:
-    from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, ParameterValue
+    from nodes.launch import (
+        DeclareLaunchArgument,
+        LaunchConfiguration,
+        LaunchDescription,
+        Node,
+        ParameterValue,
+        Shutdown,
+    )
 
 
 List = typing.List  # launch_ros's value_type for a list parameter
@@ -37,7 +44,7 @@ def generate_launch_description():
         DeclareLaunchArgument("execute", default_value="pregrasp", choices=["pregrasp", "pick"]),
         DeclareLaunchArgument("dry_run", default_value="true", choices=["true", "false"]),
         DeclareLaunchArgument("speed", default_value="0.1", description="TCP speed, m/s"),
-        Node(package="pegasus", executable="camera_node", parameters=[{
+        Node(package="pegasus", executable="camera_node", on_exit=Shutdown(), parameters=[{
             "source": arg("source"), "folder": arg("images"), "rate": 2.0}]),
         Node(package="pegasus", executable="inference_node", parameters=[{"model": arg("model"), "device": "auto"}]),
         Node(package="pegasus", executable="robot_node", parameters=[{

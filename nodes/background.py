@@ -28,19 +28,19 @@ class BackgroundJob:
         return "failed" if self.error else "done" if self.done else "running"
 
     def announce(self, node, publisher, what: str) -> None:
-        """Once the job has ended, once: publish its result (a path) as a String, or log its error and ask the
-        launch to end."""
+        """Once the job has ended, once: publish its result (a path) as a String, or log its error and end the
+        node (``nodes.ros.finish``)."""
         if not self.done or getattr(self, "_announced", False):
             return
         self._announced = True
-        if self.error is None:
-            from nodes.ros import msgs
+        from nodes.ros import finish, msgs
 
+        if self.error is None:
             publisher.publish(msgs.String(data=str(self.result)))
             node.get_logger().info(f"{node.get_name()}: {what} ready at {self.result}")
         else:
             node.get_logger().error(f"{node.get_name()}: {self.error}")
-            node.shutdown_requested = True
+            finish(node)
 
     def join(self, timeout: float | None = None) -> None:
         self._thread.join(timeout)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from nodes.conversions import numpy_to_image
-from nodes.ros import Node, declare, msgs, run_node
+from nodes.ros import Node, declare, finish, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -173,8 +173,8 @@ class CameraNode(Node):
             except PegasusError:
                 return
         frame = self.source.read()
-        if frame is None:
-            self.shutdown_requested = True
+        if frame is None:  # a folder played once: this node's job is over
+            finish(self)
             return
         image, depth = frame
         header = msgs.Header(frame_id=self.params["frame_id"])

@@ -86,14 +86,22 @@ def _qos(qos) -> QoSProfile:
 
 # -- context ----------------------------------------------------------------------------------------------
 class Context:
-    """The graph of one init(): topics -> subscriptions, services by name, latched messages."""
+    """The graph of one init(): topics -> subscriptions, services by name, latched messages. A context made
+    with ``graph=`` another shares that one's graph but is shut down on its own: the nodes of one launch each
+    get one, as each runs in a process of its own under ROS 2, and a node that shuts its context down
+    (``try_shutdown``) ends alone."""
 
-    def __init__(self):
-        self.lock = threading.RLock()
-        self.subscriptions: dict[str, list[Subscription]] = collections.defaultdict(list)
-        self.services: dict[str, Service] = {}
-        self.latched: dict[str, object] = {}  # last message of TRANSIENT_LOCAL publishers
-        self.wake = threading.Condition(self.lock)
+    def __init__(self, graph: "Context | None" = None):
+        if graph is None:
+            self.lock = threading.RLock()
+            self.subscriptions: dict[str, list[Subscription]] = collections.defaultdict(list)
+            self.services: dict[str, Service] = {}
+            self.latched: dict[str, object] = {}  # last message of TRANSIENT_LOCAL publishers
+            self.wake = threading.Condition(self.lock)
+        else:
+            self.lock, self.subscriptions, self.services = graph.lock, graph.subscriptions, graph.services
+            self.latched, self.wake = graph.latched, graph.wake
+        self.owns_graph = graph is None
         self.running = False
 
     def notify(self) -> None:
@@ -116,10 +124,17 @@ def shutdown(context: Context | None = None) -> None:
     ctx = context or _default
     ctx.running = False
     ctx.notify()
-    with ctx.lock:
-        ctx.subscriptions.clear()
-        ctx.services.clear()
-        ctx.latched.clear()
+    if ctx.owns_graph:
+        with ctx.lock:
+            ctx.subscriptions.clear()
+            ctx.services.clear()
+            ctx.latched.clear()
+
+
+def try_shutdown(context: Context | None = None) -> None:
+    """Shut the context down unless it already is (rclpy.try_shutdown)."""
+    if ok(context):
+        shutdown(context)
 
 
 def create_node(name: str, **kwargs) -> "Node":
@@ -478,9 +493,11 @@ class Node:
     def destroy_node(self) -> None:
         with self.context.lock:
             for sub in self.subscriptions:
-                self.context.subscriptions[sub.topic].remove(sub)
+                if sub in self.context.subscriptions[sub.topic]:  # gone already when the graph was shut down
+                    self.context.subscriptions[sub.topic].remove(sub)
             for service in self.services:
-                self.context.services.pop(service.name, None)
+                if self.context.services.get(service.name) is service:
+                    del self.context.services[service.name]
         self.publishers, self.subscriptions, self.timers = [], [], []
 
     # work the executor can do now: [(callable, args)]
@@ -534,8 +551,9 @@ class SingleThreadedExecutor:
         self.nodes.remove(node)
 
     def _collect(self) -> list:
+        """Ready work of the nodes whose context is still up (a node that shut its own down does no more)."""
         with self.context.lock:
-            return [w for node in self.nodes for w in node._ready_work()]
+            return [w for node in self.nodes if node.context.running for w in node._ready_work()]
 
     def _wait(self, timeout: float | None) -> None:
         deadlines = [d for d in (n._next_deadline() for n in self.nodes) if d is not None]

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from nodes.conversions import image_to_numpy, matrix_to_pose, pose_to_matrix
-from nodes.ros import Node, declare, latched, msgs, run_node
+from nodes.ros import Node, declare, finish, latched, msgs, run_node
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import Attempt, score_attempt, strip_image, summarise, write_report
@@ -127,7 +127,8 @@ class EvaluatorNode(Node):
         if self.state == "idle":
             if len(self.records) >= int(p["attempts"]):
                 write_report(p["report"], summarise(self.records, p["pose_source"]), self.strips)
-                self.state, self.shutdown_requested = "done", True
+                self.state = "done"
+                finish(self)
             else:
                 self.spawn()
         elif self.state == "settling" and time.monotonic() >= self.deadline:

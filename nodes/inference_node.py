@@ -19,7 +19,7 @@ import numpy as np
 from dope_training.infer import DopeModel
 from dope_training.overlay import draw_poses
 from nodes.conversions import image_to_numpy, matrix_to_pose, numpy_to_image
-from nodes.ros import Node, declare, latched, msgs, run_node
+from nodes.ros import Node, declare, finish, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
 PENDING_FRAMES = 4  # images or depth images kept while waiting for their partner
@@ -112,7 +112,7 @@ class InferenceNode(Node):
         if self.use_pose in stamped:
             self.pose_pub.publish(stamped[self.use_pose])
         if self.max_images and self.images >= self.max_images:
-            self.shutdown_requested = True
+            finish(self)
 
 
 NODE_CLASS = InferenceNode

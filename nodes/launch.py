@@ -6,9 +6,10 @@ LaunchConfiguration and Node from the real packages when ROS 2 is installed (the
 it) and from here otherwise, and defines ``generate_launch_description()``. The runner resolves the
 declared arguments (defaults, ``name:=value`` overrides; an undeclared or invalid one is an error naming
 the declared ones), builds every Node action's node in this process from ``nodes.<executable>``'s
-``NODE_CLASS`` with its parameters (LaunchConfiguration substituted) as overrides, and spins them on one
-multi-threaded executor until a node sets ``shutdown_requested`` or Ctrl-C. Where ROS 2 is installed
-the launch files get the real launch classes: run them with ``ros2 launch`` there.
+``NODE_CLASS`` with its parameters (evaluated as launch_ros does) as overrides, each in a context of its own
+on one shared graph, and spins them on one multi-threaded executor until a node whose action has
+``on_exit=Shutdown()`` ends (``nodes.ros.finish``) or Ctrl-C; a node that ends without it just stops.
+Where ROS 2 is installed the launch files get the real launch classes: run them with ``ros2 launch`` there.
 """
 
 from __future__ import annotations
@@ -46,8 +47,16 @@ class DeclareLaunchArgument:
 
 
 @dataclass
+class Shutdown:
+    """launch.actions.Shutdown: as a Node's ``on_exit``, the node's end ends the launch."""
+
+    reason: str = ""
+
+
+@dataclass
 class Node:
-    """launch_ros.actions.Node: ``executable`` names the module ``nodes.<executable>``."""
+    """launch_ros.actions.Node: ``executable`` names the module ``nodes.<executable>``; ``on_exit`` (Shutdown)
+    ends the launch when the node ends."""
 
     package: str = "pegasus"
     executable: str = ""
@@ -55,6 +64,7 @@ class Node:
     parameters: list = field(default_factory=list)  # [dict]
     output: str = "screen"
     arguments: list = field(default_factory=list)
+    on_exit: object = None
 
 
 class LaunchDescription:
@@ -197,29 +207,37 @@ def _coerce(text: str, value_type):
     return value
 
 
-def build_nodes(description: LaunchDescription, arguments: dict[str, str], context=None) -> list:
-    """The node objects of the description's Node actions, constructed with their parameters."""
-    from nodes.compat import Parameter, ParameterException
+def build_nodes(description: LaunchDescription, arguments: dict[str, str], graph) -> list[tuple]:
+    """[(node, its Node action)] of the description's Node actions, each node constructed with its parameters
+    in a context of its own (on ``graph``, a stand-in Context: the nodes talk, and end, as separate
+    processes do). If one cannot be built, those built before it are destroyed."""
+    from nodes import compat
 
     built = []
-    for entity in description.entities:
-        if not isinstance(entity, Node):
-            continue
-        try:
-            module = importlib.import_module(f"nodes.{entity.executable}")
-        except ModuleNotFoundError as exc:
-            raise PegasusError(f"launch: no node executable {entity.executable!r} (nodes.{entity.executable})") from exc
-        params = {}
-        for group in entity.parameters:
-            params.update({k: parameter_value(k, v, arguments) for k, v in group.items()})
-        overrides = [Parameter(k, value=v) for k, v in params.items()]
-        kwargs = {"parameter_overrides": overrides}
-        if context is not None:
-            kwargs["context"] = context
-        try:
-            built.append(module.NODE_CLASS(**kwargs))
-        except ParameterException as exc:  # a parameter of another type than the node declares
-            raise PegasusError(f"launch: {entity.executable}: {exc}") from None
+    try:
+        for entity in description.entities:
+            if not isinstance(entity, Node):
+                continue
+            try:
+                module = importlib.import_module(f"nodes.{entity.executable}")
+            except ModuleNotFoundError as exc:
+                raise PegasusError(f"launch: no node executable {entity.executable!r} "
+                                   f"(nodes.{entity.executable})") from exc
+            params = {}
+            for group in entity.parameters:
+                params.update({k: parameter_value(k, v, arguments) for k, v in group.items()})
+            context = compat.Context(graph=graph)
+            compat.init(context=context)
+            try:
+                node = module.NODE_CLASS(context=context,
+                                         parameter_overrides=[compat.Parameter(k, value=v) for k, v in params.items()])
+            except compat.ParameterException as exc:  # a parameter of another type than the node declares
+                raise PegasusError(f"launch: {entity.executable}: {exc}") from None
+            built.append((node, entity))
+    except BaseException:
+        for node, _ in built:
+            node.destroy_node()
+        raise
     return built
 
 
@@ -231,20 +249,26 @@ def run(path: str | Path, overrides: list[str], timeout: float | None = None) ->
 
     description = load_description(path)
     arguments = resolve_arguments(description, parse_overrides(overrides))
-    compat.init()
-    nodes = build_nodes(description, arguments)
-    executor = compat.MultiThreadedExecutor()
-    for node in nodes:
+    graph = compat.Context()
+    compat.init(context=graph)
+    built = build_nodes(description, arguments, graph)
+    executor = compat.MultiThreadedExecutor(context=graph)
+    for node, _ in built:
         executor.add_node(node)
     t0 = time.monotonic()
     try:
-        while compat.ok() and not any(getattr(n, "shutdown_requested", False) for n in nodes):
+        while graph.running:
             if timeout is not None and time.monotonic() - t0 > timeout:
                 break
             executor.spin_once(timeout_sec=0.05)
+            for node, action in [(n, a) for n, a in built if not n.context.running and n in executor.nodes]:
+                executor.remove_node(node)  # the node's process has exited
+                if isinstance(action.on_exit, Shutdown):
+                    compat.shutdown(graph)
     finally:
         executor.shutdown()
-        for node in nodes:
+        for node, _ in built:
             node.destroy_node()
-        compat.shutdown()
-    return nodes
+            compat.try_shutdown(node.context)
+        compat.try_shutdown(graph)
+    return [node for node, _ in built]

@@ -50,8 +50,16 @@ def declare(node, parameters: tuple) -> dict:
     return {name: node.declare_parameter(name, default).value for name, default in parameters}
 
 
+def finish(node) -> None:
+    """End ``node`` the rclpy way once its job is over: shut its context down, so that spin returns and its
+    process (``run_node``) exits. A launch file ends the whole launch with it through ``on_exit=Shutdown()``
+    on the node's action."""
+    rclpy.try_shutdown(context=node.context)
+
+
 def run_node(node_class, args=None) -> None:
-    """init, spin one node until shutdown or Ctrl-C, clean up: each node module's ``main``."""
+    """init, spin one node until its context shuts down (``finish``) or Ctrl-C, clean up: each node module's
+    ``main``."""
     rclpy.init(args=args)
     node = node_class()
     try:
@@ -60,8 +68,8 @@ def run_node(node_class, args=None) -> None:
         pass
     finally:
         node.destroy_node()
-        rclpy.shutdown()
+        rclpy.try_shutdown()
 
 
-__all__ = ["run_node", "declare", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor",
+__all__ = ["run_node", "finish", "declare", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor",
            "SingleThreadedExecutor", "Parameter", "msgs", "REAL_ROS"]

@@ -10,7 +10,7 @@ from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 
 LAUNCH = '''
-from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node
+from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, Shutdown
 
 
 def generate_launch_description():
@@ -18,7 +18,7 @@ def generate_launch_description():
         DeclareLaunchArgument("images", description="image folder"),
         DeclareLaunchArgument("rate", default_value="100.0"),
         DeclareLaunchArgument("source", default_value="folder", choices=["folder", "oak"]),
-        Node(package="pegasus", executable="camera_node",
+        Node(package="pegasus", executable="camera_node", on_exit=Shutdown(),
              parameters=[{"source": LaunchConfiguration("source"), "folder": LaunchConfiguration("images"),
                           "rate": LaunchConfiguration("rate"), "loop": False, "fx": 500.0}]),
     ])
@@ -43,6 +43,33 @@ def test_launch_runs_its_nodes_with_overridden_arguments(launch_file):
     assert camera.get_parameter("folder").value == str(images)
     K = camera.camera_matrix(32, 24)
     assert K[0, 0] == 500.0 and K[0, 2] == 15.5
+
+
+def test_a_node_ends_the_launch_only_through_on_exit_shutdown(tmp_path):
+    # as under ros2 launch: each node ends alone (its own context shut down, nodes.ros.finish); the launch
+    # goes on until a node whose action has on_exit=Shutdown() ends
+    folders = []
+    for n in (2, 6):
+        folders.append(tmp_path / f"images{n}")
+        folders[-1].mkdir()
+        for k in range(n):
+            cv2.imwrite(str(folders[-1] / f"{k:03d}.png"), np.full((8, 8, 3), 10 * k, np.uint8))
+    path = tmp_path / "two.launch.py"
+    path.write_text(f'''
+from nodes.launch import LaunchDescription, Node, Shutdown
+
+
+def generate_launch_description():
+    return LaunchDescription([
+        Node(package="pegasus", executable="camera_node",
+             parameters=[{{"folder": "{folders[0]}", "rate": 100.0, "loop": False, "fx": 10.0}}]),
+        Node(package="pegasus", executable="camera_node", on_exit=Shutdown(),
+             parameters=[{{"folder": "{folders[1]}", "rate": 20.0, "loop": False, "fx": 10.0}}]),
+    ])
+''')
+    short, long = run(path, [], timeout=60)
+    assert (short.frames, long.frames) == (2, 6)
+    assert not short.context.running and not long.context.running
 
 
 def test_bad_launch_arguments_are_clear_errors(launch_file, tmp_path, capsys):
