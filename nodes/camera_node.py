@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nodes.conversions import numpy_to_image
+from nodes.conversions import camera_info, numpy_to_image
 from nodes.ros import Node, declare, finish, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
@@ -180,8 +180,7 @@ class CameraNode(Node):
         header = msgs.Header(frame_id=self.params["frame_id"])
         header.stamp = self.get_clock().now().to_msg()
         h, w = image.shape[:2]
-        info = msgs.CameraInfo(header=header, height=h, width=w)
-        info.k = self.camera_matrix(w, h).ravel().tolist()
+        info = camera_info(self.camera_matrix(w, h), w, h, header)
         if depth is not None:
             self.depth_pub.publish(numpy_to_image(depth, "32FC1", header))
         self.image_pub.publish(numpy_to_image(image, "rgb8", header))

@@ -50,6 +50,21 @@ def image_to_numpy(msg) -> np.ndarray:
     return flat.reshape(shape).astype(dtype.newbyteorder("="))
 
 
+def camera_info(K: np.ndarray, width: int, height: int, header=None, distortion=None):
+    """A sensor_msgs/CameraInfo of a camera with intrinsics K [3, 3] (px) and ``distortion`` (plumb_bob
+    k1 k2 t1 t2 k3; None: none): ``p`` is [K | 0] (a monocular camera, rectified frame = camera frame, as
+    DOPE's ROS node reads it) and ``r`` the identity."""
+    msg = msgs.CameraInfo()
+    if header is not None:
+        msg.header = header
+    msg.height, msg.width, msg.distortion_model = int(height), int(width), "plumb_bob"
+    msg.d = [float(v) for v in (distortion if distortion is not None else np.zeros(5))]
+    msg.k = [float(v) for v in np.asarray(K, np.float64).ravel()]
+    msg.r = [float(v) for v in np.eye(3).ravel()]
+    msg.p = [float(v) for v in np.hstack([np.asarray(K, np.float64), np.zeros((3, 1))]).ravel()]
+    return msg
+
+
 def matrix_to_pose(T: np.ndarray):
     """A geometry_msgs/Pose from T [4, 4] (metres)."""
     msg = msgs.Pose()

@@ -41,10 +41,10 @@ class CameraInfo:  # sensor_msgs/CameraInfo
     header: Header = field(default_factory=Header)
     height: int = 0
     width: int = 0
-    distortion_model: str = "plumb_bob"
-    d: list = field(default_factory=lambda: [0.0] * 5)
+    distortion_model: str = ""  # the ROS 2 defaults: empty d, zero k, r and p
+    d: list = field(default_factory=list)
     k: list = field(default_factory=lambda: [0.0] * 9)
-    r: list = field(default_factory=lambda: [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0])
+    r: list = field(default_factory=lambda: [0.0] * 9)
     p: list = field(default_factory=lambda: [0.0] * 12)
 
 

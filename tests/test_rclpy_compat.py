@@ -139,3 +139,19 @@ def test_parameters_are_statically_typed_as_in_rclpy():
     assert node.get_parameter("scale").get_parameter_value() == ParameterValue(type=3, double_value=3.0)
     with pytest.raises(ParameterNotDeclaredException):
         node.set_parameters([Parameter("undeclared", value=1)])
+
+
+def test_camera_info_carries_k_p_r_d_and_the_distortion_model():
+    from nodes.conversions import camera_info
+
+    K = np.array([[554.3, 0.0, 319.5], [0.0, 553.9, 241.2], [0.0, 0.0, 1.0]])
+    assert msgs.CameraInfo().d == [] and msgs.CameraInfo().r == [0.0] * 9  # ROS 2's defaults: set them
+    info = camera_info(K, 640, 480, msgs.Header(frame_id="camera"))
+    P = np.array(info.p).reshape(3, 4)
+    np.testing.assert_array_equal(P[:, :3], K)
+    assert (P[:, 3] == 0).all() and np.array_equal(np.array(info.r).reshape(3, 3), np.eye(3))
+    assert info.distortion_model == "plumb_bob" and info.d == [0.0] * 5 and (info.width, info.height) == (640, 480)
+    # a point in the camera frame projects to the same pixel through K and through P
+    X = np.array([0.1, -0.05, 0.8])
+    np.testing.assert_allclose((K @ X)[:2] / X[2], (P @ np.append(X, 1.0))[:2] / X[2])
+    assert camera_info(K, 640, 480, distortion=[0.1, -0.2, 0.0, 0.0, 0.05]).d == [0.1, -0.2, 0.0, 0.0, 0.05]
