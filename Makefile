@@ -47,7 +47,7 @@ system-deps:
 	  echo "      not root, so not installing them; run: sudo apt-get install$$missing"; \
 	fi
 
-$(STAMP): pyproject.toml | system-deps
+$(STAMP): pyproject.toml setup.py setup.cfg | system-deps
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "Python >= 3.10 needed, found " + sys.version' \
 	  || { echo "ERROR: $(PYTHON) is too old; set PYTHON=python3.11"; exit 1; }
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
