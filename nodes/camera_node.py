@@ -9,8 +9,9 @@ loop);
 simulated controller), ``library``, ``environment``, ``T_world_base`` and ``T_world_cam`` (16 numbers each,
 row-major) — each frame renders the environment's splats and every object of the simulated cell at its
 current pose (asset name = the sim object's name up to '#'), with the splat renderer on ``device``;
-``rate`` (Hz); ``frame_id``; ``width``/``height`` (OAK output size). The OAK source uses depthai 3
-(when installed) and fails with a clear message when no device is attached.
+``rate`` (Hz); ``frame_id``; ``width``/``height`` (OAK output size). With ``sim`` it also broadcasts the
+static transform world -> base_link (T_world_base); robot_node adds base_link -> camera (its hand-eye). The
+OAK source uses depthai 3 (when installed) and fails with a clear message when no device is attached.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nodes.conversions import camera_info, numpy_to_image
-from nodes.ros import Node, declare, finish, msgs, run_node
+from nodes.conversions import camera_info, matrix_to_transform, numpy_to_image
+from nodes.ros import Node, StaticTransformBroadcaster, declare, finish, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -152,6 +153,10 @@ class CameraNode(Node):
         self.info_pub = self.create_publisher(msgs.CameraInfo, "camera_info", 5)
         self.depth_pub = self.create_publisher(msgs.Image, "depth", 5)
         self.frames = 0
+        if p["source"] == "sim":
+            self.tf_static = StaticTransformBroadcaster(self)
+            self.tf_static.sendTransform(matrix_to_transform(np.array(p["T_world_base"]).reshape(4, 4), "world",
+                                                             "base_link", self.get_clock().now().to_msg()))
         self.create_timer(1.0 / float(p["rate"]), self.tick)
 
     def camera_matrix(self, width: int, height: int) -> np.ndarray:

@@ -96,7 +96,9 @@ class Context:
             self.lock = threading.RLock()
             self.subscriptions: dict[str, list[Subscription]] = collections.defaultdict(list)
             self.services: dict[str, Service] = {}
-            self.latched: dict[str, object] = {}  # last message of TRANSIENT_LOCAL publishers
+            # topic -> {publisher: its last message}, for TRANSIENT_LOCAL publishers (each keeps its own, as a
+            # DDS writer does)
+            self.latched: dict[str, dict] = collections.defaultdict(dict)
             self.wake = threading.Condition(self.lock)
         else:
             self.lock, self.subscriptions, self.services = graph.lock, graph.subscriptions, graph.services
@@ -178,7 +180,7 @@ class Publisher:
         ctx = self.node.context
         with ctx.lock:
             if self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
-                ctx.latched[self.topic] = msg
+                ctx.latched[self.topic][self] = msg
             for sub in ctx.subscriptions.get(self.topic, []):
                 sub.queue.append(msg)
         ctx.notify()
@@ -195,9 +197,8 @@ class Subscription:
         self.node, self.msg_type, self.topic, self.callback = node, msg_type, topic, callback
         depth = None if qos.history == HistoryPolicy.KEEP_ALL else max(qos.depth, 1)
         self.queue: collections.deque = collections.deque(maxlen=depth)
-        latched = node.context.latched.get(topic)
-        if latched is not None:
-            self.queue.append(latched)
+        for message in node.context.latched.get(topic, {}).values():
+            self.queue.append(message)
 
     def destroy(self) -> None:
         with self.node.context.lock:

@@ -74,6 +74,19 @@ def matrix_to_pose(T: np.ndarray):
     return msg
 
 
+def matrix_to_transform(T: np.ndarray, parent: str, child: str, stamp=None):
+    """A geometry_msgs/TransformStamped: the pose T [4, 4] (metres) of frame ``child`` in frame ``parent``."""
+    msg = msgs.TransformStamped()
+    msg.header.frame_id, msg.child_frame_id = parent, child
+    if stamp is not None:
+        msg.header.stamp = stamp
+    pose = matrix_to_pose(T)
+    msg.transform.translation.x, msg.transform.translation.y, msg.transform.translation.z = (
+        pose.position.x, pose.position.y, pose.position.z)
+    msg.transform.rotation = pose.orientation
+    return msg
+
+
 def pose_to_matrix(pose) -> np.ndarray:
     """T [4, 4] from a geometry_msgs/Pose; raises ValueError for a zero or non-finite quaternion."""
     T = np.eye(4)

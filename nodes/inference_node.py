@@ -9,7 +9,8 @@ nothing when it is rejected), ``detections`` (vision_msgs/Detection3DArray: ever
 and model box, refined where accepted) and ``overlay`` (the image with the posed boxes and keypoints).
 Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives on the ``model`` topic, as
 trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``, ``refine`` (bool), ``use_pose``
-(raw | refined), ``max_images`` (> 0: ask the launch to end after that many images).
+(raw | refined), ``max_images`` (> 0: end after that many images). Broadcasts on /tf each instance's pose
+(refined where accepted) as the transform from the image's frame to ``<object>_<k>`` (k by score).
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ import numpy as np
 
 from dope_training.infer import DopeModel
 from dope_training.overlay import draw_poses
-from nodes.conversions import image_to_numpy, matrix_to_pose, numpy_to_image
-from nodes.ros import Node, declare, finish, latched, msgs, run_node
+from nodes.conversions import image_to_numpy, matrix_to_pose, matrix_to_transform, numpy_to_image
+from nodes.ros import Node, TransformBroadcaster, declare, finish, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
 PENDING_FRAMES = 4  # images or depth images kept while waiting for their partner
@@ -47,6 +48,7 @@ class InferenceNode(Node):
         self.refined_pub = self.create_publisher(msgs.PoseStamped, "object_pose_refined", 5)
         self.detections_pub = self.create_publisher(msgs.Detection3DArray, "detections", 5)
         self.overlay_pub = self.create_publisher(msgs.Image, "overlay", 2)
+        self.tf = TransformBroadcaster(self)
         self.create_subscription(msgs.CameraInfo, "camera_info", self.on_info, 5)
         self.create_subscription(msgs.Image, "image", self.on_image, 2)
         if self.refine:
@@ -100,6 +102,10 @@ class InferenceNode(Node):
             detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = (float(v) for v in obj.bbox_size)
             array.detections.append(detection)
         self.detections_pub.publish(array)
+        if poses:
+            self.tf.sendTransform([matrix_to_transform(p.refined if p.refined is not None else p.T, msg.header.frame_id,
+                                                       f"{obj.name}_{k}", msg.header.stamp)
+                                   for k, p in enumerate(poses)])
         overlay = draw_poses(image, self.K, poses, obj)
         self.overlay_pub.publish(numpy_to_image(overlay, "rgb8", msg.header))
         best = {"raw": next((p.T for p in poses if p.T is not None), None),

@@ -96,6 +96,11 @@ class TransformStamped:
 
 
 @dataclass
+class TFMessage:  # tf2_msgs/TFMessage: what tf2_ros broadcasters publish on /tf and /tf_static
+    transforms: list = field(default_factory=list)  # [TransformStamped]
+
+
+@dataclass
 class ObjectHypothesis:  # vision_msgs/ObjectHypothesis
     class_id: str = ""
     score: float = 0.0

@@ -13,7 +13,8 @@ row-major); ``basket`` (floor centre x y z, base frame); ``table_z`` (the table 
 ``execute`` = pick (the whole pick-and-place) or pregrasp (stop above the object); ``home`` (joints, rad: each
 attempt starts there); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per message on ``attempt``,
 as evaluator_node sends them; the status carries that attempt's number). Poses arriving while it moves are
-ignored. ``results``: per attempt, picked, missed, pregrasp, implausible or failed.
+ignored. ``results``: per attempt, picked, missed, pregrasp, implausible or failed. Broadcasts the static
+transform base_link -> ``camera_frame`` (the hand-eye).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import threading
 
 import numpy as np
 
-from nodes.conversions import pose_to_matrix
-from nodes.ros import Node, declare, latched, msgs, run_node
+from nodes.conversions import matrix_to_transform, pose_to_matrix
+from nodes.ros import Node, StaticTransformBroadcaster, declare, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import IMPLAUSIBLE_DETAIL
 from robot_bridge.bridge import UR5, BridgeConfig
@@ -39,7 +40,7 @@ PARAMETERS = (
     ("table_z", 0.0),
     ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
     ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),
-    ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]))
+    ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]), ("camera_frame", "camera"))
 
 
 class RobotNode(Node):
@@ -56,6 +57,9 @@ class RobotNode(Node):
         self.robot = UR5(BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"]),
                                       envelope=SafetyEnvelope(table_z=p["table_z"])))
         self.status_pub = self.create_publisher(msgs.String, "robot_status", 10)
+        self.tf_static = StaticTransformBroadcaster(self)  # where the camera is: base_link -> camera
+        self.tf_static.sendTransform(matrix_to_transform(self.T_base_cam, "base_link", p["camera_frame"],
+                                                         self.get_clock().now().to_msg()))
         self.create_subscription(msgs.PoseStamped, "object_pose", self.on_pose, 1)
         self.create_subscription(msgs.String, "attempt", self.on_attempt, latched())
         self.armed = None  # the attempt number a pose may start (with wait_for_attempt)

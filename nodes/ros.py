@@ -18,10 +18,12 @@ try:  # pragma: no cover - exercised only where ROS 2 is installed
     from sensor_msgs.msg import CameraInfo, Image
     from std_msgs.msg import Header, String
     from std_srvs.srv import Trigger
+    from tf2_msgs.msg import TFMessage
     from vision_msgs.msg import Detection3D, Detection3DArray, ObjectHypothesisWithPose
 
     msgs = types.SimpleNamespace(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped,
                                  CameraInfo=CameraInfo, Image=Image, Header=Header, String=String, Trigger=Trigger,
+                                 TFMessage=TFMessage,
                                  Detection3D=Detection3D, Detection3DArray=Detection3DArray,
                                  ObjectHypothesisWithPose=ObjectHypothesisWithPose)
     REAL_ROS = True
@@ -50,6 +52,33 @@ def declare(node, parameters: tuple) -> dict:
     return {name: node.declare_parameter(name, default).value for name, default in parameters}
 
 
+if REAL_ROS:  # pragma: no cover
+    from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
+else:
+    class TransformBroadcaster:
+        """tf2_ros.TransformBroadcaster on the stand-in: tf2_msgs/TFMessage on /tf, as the real one sends."""
+
+        def __init__(self, node, qos=None):
+            self.publisher = node.create_publisher(msgs.TFMessage, "/tf", qos or QoSProfile(depth=100))
+
+        def sendTransform(self, transform) -> None:  # noqa: N802 - tf2_ros's name
+            transforms = transform if isinstance(transform, (list, tuple)) else [transform]
+            self.publisher.publish(msgs.TFMessage(transforms=list(transforms)))
+
+    class StaticTransformBroadcaster:
+        """tf2_ros.StaticTransformBroadcaster on the stand-in: every static transform sent so far (the newest
+        per child frame) in one TFMessage, latched on /tf_static."""
+
+        def __init__(self, node, qos=None):
+            self.publisher = node.create_publisher(msgs.TFMessage, "/tf_static", qos or latched(1))
+            self.transforms: dict[str, object] = {}
+
+        def sendTransform(self, transform) -> None:  # noqa: N802 - tf2_ros's name
+            for t in transform if isinstance(transform, (list, tuple)) else [transform]:
+                self.transforms[t.child_frame_id] = t
+            self.publisher.publish(msgs.TFMessage(transforms=list(self.transforms.values())))
+
+
 def finish(node) -> None:
     """End ``node`` the rclpy way once its job is over: shut its context down, so that spin returns and its
     process (``run_node``) exits. A launch file ends the whole launch with it through ``on_exit=Shutdown()``
@@ -71,5 +100,5 @@ def run_node(node_class, args=None) -> None:
         rclpy.try_shutdown()
 
 
-__all__ = ["run_node", "finish", "declare", "latched", "rclpy", "Node", "QoSProfile", "MultiThreadedExecutor",
-           "SingleThreadedExecutor", "Parameter", "msgs", "REAL_ROS"]
+__all__ = ["run_node", "finish", "declare", "TransformBroadcaster", "StaticTransformBroadcaster", "latched", "rclpy",
+           "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs", "REAL_ROS"]

@@ -18,7 +18,7 @@ from nodes.camera_node import CameraNode
 from nodes.compat import Parameter
 from nodes.inference_node import InferenceNode
 from nodes.robot_node import RobotNode
-from nodes.ros import REAL_ROS
+from nodes.ros import REAL_ROS, latched, msgs
 from pegasus_gen.geometry.cuboid import cuboid_points
 from robot_bridge.bridge import UR5, BridgeConfig
 from robot_bridge.grasp import plan_grasp
@@ -28,6 +28,15 @@ from robot_bridge.sim.world import HOME_Q
 from robot_bridge.ur5_urdf import TCP_Z
 
 pytestmark = pytest.mark.skipif(REAL_ROS, reason="runs the nodes on the stand-in layer")
+
+
+def transform_to_matrix(msg) -> np.ndarray:
+    """T [4, 4] of a TransformStamped, read independently of nodes.conversions."""
+    r, t = msg.transform.rotation, msg.transform.translation
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+    T[:3, 3] = [t.x, t.y, t.z]
+    return T
 
 
 def test_camera_inference_robot_chain_sends_the_robot_to_the_pregrasp(dope_dataset, overfit_dope, tmp_path):
@@ -72,6 +81,12 @@ def test_camera_inference_robot_chain_sends_the_robot_to_the_pregrasp(dope_datas
                                                Parameter("bbox_min", value=list(model.object.bbox_min)),
                                                Parameter("bbox_size", value=list(model.object.bbox_size))]),
             ]
+            tf = {"/tf": [], "/tf_static": []}
+            probe = compat.Node("tf_probe")
+            for topic in tf:
+                probe.create_subscription(msgs.TFMessage, topic, lambda m, t=topic: tf[t].extend(m.transforms),
+                                          latched(1) if topic == "/tf_static" else 100)
+            nodes.append(probe)
             executor = compat.MultiThreadedExecutor()
             for node in nodes:
                 executor.add_node(node)
@@ -81,6 +96,13 @@ def test_camera_inference_robot_chain_sends_the_robot_to_the_pregrasp(dope_datas
             executor.shutdown()
             assert nodes[2].results[:1] == ["pregrasp"], nodes[2].results
             assert nodes[1].images >= 1
+            # TF: the hand-eye as base_link -> camera (static), the estimate as camera -> noodle_cup_red_0
+            (hand_eye,) = [t for t in tf["/tf_static"] if t.child_frame_id == "camera"]
+            assert hand_eye.header.frame_id == "base_link"
+            np.testing.assert_allclose(transform_to_matrix(hand_eye), T_base_cam, atol=1e-9)
+            cup = [t for t in tf["/tf"] if t.child_frame_id == f"{model.object.name}_0"]
+            assert cup and cup[0].header.frame_id == "camera"
+            np.testing.assert_allclose(transform_to_matrix(cup[0]), estimate, atol=1e-6)
         finally:
             for node in nodes:
                 node.destroy_node()
