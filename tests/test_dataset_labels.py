@@ -15,7 +15,7 @@ from pycocotools.cocoeval import COCOeval
 from pegasus_gen.cli.main import main
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
-from pegasus_gen.dataset.validate import validate
+from pegasus_gen.dataset.validate import coco_instance_count, validate
 from pegasus_gen.dataset.view import view
 
 W, H = 320, 240
@@ -79,6 +79,20 @@ def test_validate_catches_a_wrong_pose_and_metres_for_millimetres(dataset, tmp_p
     assert main(["validate", str(bad)]) == 1
     assert main(["validate", str(tmp_path / "nothing")]) == 2
     assert "no train_pbr/ folder" in capsys.readouterr().err
+
+
+def test_validate_counts_coco_annotations_as_bop_writes_them(dataset, tmp_path):
+    infos = {"0": [{"px_count_visib": 40}, {"px_count_visib": 0}], "1": [{"px_count_visib": 1}]}
+    assert coco_instance_count(infos) == 2  # a hidden instance has no annotation
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    path = copy / "train_pbr" / "000000" / "scene_gt_coco.json"
+    coco = json.loads(path.read_text())
+    coco["annotations"] = coco["annotations"][1:]  # one visible instance lost
+    path.write_text(json.dumps(coco))
+    problems = validate(copy).problems
+    assert problems == [f"000000: scene_gt_coco.json has {len(coco['annotations'])} annotations for "
+                        f"{len(coco['annotations']) + 1} instances with visible pixels"], problems
 
 
 def coco_scores(coco_gt, iou_type):

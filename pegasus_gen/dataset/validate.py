@@ -183,6 +183,12 @@ def _check_image(scene: Path, im_id: int, gts, camera, infos, models, report: Re
                 report.problems.append(f"{name}: depth differs from the posed model by {error:.1f} mm (median)")
 
 
+def coco_instance_count(infos: dict) -> int:
+    """The number of annotations BOP's COCO files hold for a scene_gt_info {im_id: [entry]}: instances with
+    at least one visible pixel (bop_toolkit leaves the others out)."""
+    return sum(1 for entries in infos.values() for entry in entries if entry.get("px_count_visib", 0) > 0)
+
+
 def validate(root: str | Path, split: str = "train_pbr", *, min_mask_px: int = 500, min_iou: float = 0.9,
              boundary_px: int = 1, max_depth_mm: float = 5.0, min_visible_px: int = 100,
              max_images: int | None = None) -> Report:
@@ -215,10 +221,11 @@ def validate(root: str | Path, split: str = "train_pbr", *, min_mask_px: int = 5
                              min_visible_px=min_visible_px)
             except (ValueError, KeyError, TypeError) as exc:
                 report.problems.append(f"{scene.name}/{int(im_id):06d}: {exc}")
-        coco = scene / "scene_gt_coco.json"
-        if coco.is_file():
-            annotations = read_json(coco).get("annotations", [])
-            if len(annotations) != sum(len(v) for v in gt.values()):
-                report.problems.append(f"{scene.name}: scene_gt_coco.json has {len(annotations)} annotations, "
-                                       "scene_gt another number of instances")
+        for name in ("scene_gt_coco.json", "scene_gt_coco_modal.json"):
+            if (scene / name).is_file():
+                annotations = read_json(scene / name).get("annotations", [])
+                expected = coco_instance_count(infos)
+                if len(annotations) != expected:
+                    report.problems.append(f"{scene.name}: {name} has {len(annotations)} annotations for "
+                                           f"{expected} instances with visible pixels")
     return report
