@@ -189,6 +189,8 @@ class Publisher:
         return len(self.node.context.subscriptions.get(self.topic, []))
 
     def destroy(self) -> None:
+        with self.node.context.lock:
+            self.node.context.latched.get(self.topic, {}).pop(self, None)  # its stored message goes with it
         self.node.publishers.remove(self)
 
 
@@ -499,6 +501,8 @@ class Node:
             for service in self.services:
                 if self.context.services.get(service.name) is service:
                     del self.context.services[service.name]
+            for pub in self.publishers:
+                self.context.latched.get(pub.topic, {}).pop(pub, None)
         self.publishers, self.subscriptions, self.timers = [], [], []
 
     # work the executor can do now: [(callable, args)]

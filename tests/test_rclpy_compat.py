@@ -155,3 +155,30 @@ def test_camera_info_carries_k_p_r_d_and_the_distortion_model():
     X = np.array([0.1, -0.05, 0.8])
     np.testing.assert_allclose((K @ X)[:2] / X[2], (P @ np.append(X, 1.0))[:2] / X[2])
     assert camera_info(K, 640, 480, distortion=[0.1, -0.2, 0.0, 0.0, 0.05]).d == [0.1, -0.2, 0.0, 0.0, 0.05]
+
+
+def test_a_late_subscriber_gets_each_latched_publishers_last_message():
+    from nodes.ros import latched
+
+    rclpy.init()
+    try:
+        a, b, late = Node("a"), Node("b"), Node("late")
+        for node, text in ((a, "a1"), (a, "a2"), (b, "b1")):
+            pub = next((p for p in node.publishers if p.topic == "state"), None) or \
+                node.create_publisher(msgs.String, "state", latched())
+            pub.publish(msgs.String(data=text))
+        got = []
+        late.create_subscription(msgs.String, "state", lambda m: got.append(m.data), latched(10))
+        executor = SingleThreadedExecutor()
+        executor.add_node(late)
+        executor.spin_once(0.1)
+        executor.spin_once(0.1)
+        assert sorted(got) == ["a2", "b1"]  # one message per publisher, its last
+        a.destroy_node()
+        later, got2 = Node("later"), []
+        later.create_subscription(msgs.String, "state", lambda m: got2.append(m.data), latched(10))
+        executor.add_node(later)
+        executor.spin_once(0.1)
+        assert got2 == ["b1"]  # a destroyed publisher's message is gone with it
+    finally:
+        rclpy.shutdown()
