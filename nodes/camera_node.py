@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nodes.conversions import camera_info, matrix_to_transform, numpy_to_image
+from nodes.conversions import IDENTITY, camera_info, matrix_to_transform, numpy_to_image
 from nodes.ros import Node, StaticTransformBroadcaster, declare, finish, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
@@ -128,7 +128,7 @@ PARAMETERS = (
     ("source", "folder"), ("folder", ""), ("loop", True), ("rate", 5.0), ("frame_id", "camera"),
     ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480),
     ("wait_for_folder", False), ("host", "127.0.0.1"), ("library", ""), ("environment", "wooden_table"),
-    ("T_world_base", [float(v) for v in np.eye(4).ravel()]), ("T_world_cam", [float(v) for v in np.eye(4).ravel()]),
+    ("T_world_base", IDENTITY), ("T_world_cam", IDENTITY),
     ("device", "auto"))
 
 

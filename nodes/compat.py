@@ -2,7 +2,7 @@
 rclpy when it imports). Same names and call shapes as rclpy: ``init/shutdown/ok``, ``Node`` (publishers,
 subscriptions, timers, services and clients, declared parameters, logger, clock), QoS profiles,
 ``SingleThreadedExecutor`` / ``MultiThreadedExecutor``, ``spin``, ``spin_once``,
-``spin_until_future_complete``, ``Future``.
+``spin_until_future_complete``, ``Future``; and tf2_ros's two broadcasters.
 
 Transport: in-process. A context holds the graph; ``publish`` puts the message on each matching
 subscription's queue (``depth`` newest kept, as KEEP_LAST), and an executor runs the callbacks of the nodes
@@ -21,6 +21,8 @@ import time
 import warnings
 from dataclasses import dataclass
 from enum import Enum, IntEnum
+
+from nodes.msgs import TFMessage
 
 
 class ParameterException(Exception):
@@ -284,31 +286,23 @@ class Parameter:
 
         @classmethod
         def from_parameter_value(cls, value) -> "Parameter.Type":
+            """The first type, in rclpy's order (bool before int; an empty list is a BYTE_ARRAY), that holds
+            ``value``; TypeError when none does."""
             if value is None:
                 return cls.NOT_SET
-            for kind, scalar in ((cls.BOOL, bool), (cls.INTEGER, int), (cls.DOUBLE, float), (cls.STRING, str)):
-                if isinstance(value, scalar):
-                    return kind
-            if isinstance(value, (list, tuple)):
-                for kind, item in ((cls.BYTE_ARRAY, bytes), (cls.BOOL_ARRAY, bool), (cls.INTEGER_ARRAY, int),
-                                   (cls.DOUBLE_ARRAY, float), (cls.STRING_ARRAY, str)):
-                    if all(isinstance(v, item) for v in value):
-                        return kind
-                raise TypeError(f"The given value is not a list of one of the allowed types '{value}'.")
-            raise TypeError(f"The given value is not one of the allowed types '{value}'.")
+            kinds = _ARRAY_ITEMS if isinstance(value, (list, tuple)) else _SCALARS
+            kind = next((kind for kind in kinds if cls(kind).check(value)), None)
+            if kind is None:
+                raise TypeError(f"The given value is not one of the allowed types '{value}'.")
+            return cls(kind)
 
         def check(self, value) -> bool:
             """Whether ``value`` can be held as this type (rclpy's rule: a bool is an int here)."""
             if self == Parameter.Type.NOT_SET:
                 return value is None
-            scalar = {Parameter.Type.BOOL: bool, Parameter.Type.INTEGER: int, Parameter.Type.DOUBLE: float,
-                      Parameter.Type.STRING: str}.get(self)
-            if scalar is not None:
-                return isinstance(value, scalar)
-            item = {Parameter.Type.BYTE_ARRAY: bytes, Parameter.Type.BOOL_ARRAY: bool,
-                    Parameter.Type.INTEGER_ARRAY: int, Parameter.Type.DOUBLE_ARRAY: float,
-                    Parameter.Type.STRING_ARRAY: str}[self]
-            return isinstance(value, (list, tuple)) and all(isinstance(v, item) for v in value)
+            if self in _SCALARS:
+                return isinstance(value, _SCALARS[self])
+            return isinstance(value, (list, tuple)) and all(isinstance(v, _ARRAY_ITEMS[self]) for v in value)
 
     def __init__(self, name: str, type_: "Parameter.Type | None" = None, value=None):
         if type_ is None:
@@ -333,6 +327,13 @@ class Parameter:
 
     def get_parameter_value(self) -> "ParameterValue":
         return ParameterValue.of(self._type, self._value)
+
+
+# Parameter.Type -> the Python type of the value (of each item, for arrays), in rclpy's order of inference
+_SCALARS = {Parameter.Type.BOOL: bool, Parameter.Type.INTEGER: int, Parameter.Type.DOUBLE: float,
+            Parameter.Type.STRING: str}
+_ARRAY_ITEMS = {Parameter.Type.BYTE_ARRAY: bytes, Parameter.Type.BOOL_ARRAY: bool, Parameter.Type.INTEGER_ARRAY: int,
+                Parameter.Type.DOUBLE_ARRAY: float, Parameter.Type.STRING_ARRAY: str}
 
 
 @dataclass
@@ -537,6 +538,33 @@ def _serve(service: Service, request, future: Future, client: Client) -> None:
     with client.node.context.lock:
         client.responses.append((future, response))
     client.node.context.notify()
+
+
+# -- tf2_ros broadcasters ---------------------------------------------------------------------------------
+class TransformBroadcaster:
+    """tf2_ros.TransformBroadcaster: tf2_msgs/TFMessage on /tf, as the real one sends."""
+
+    def __init__(self, node: Node, qos=None):
+        self.publisher = node.create_publisher(TFMessage, "/tf", qos or QoSProfile(depth=100))
+
+    def sendTransform(self, transform) -> None:  # noqa: N802 - tf2_ros's name
+        transforms = transform if isinstance(transform, (list, tuple)) else [transform]
+        self.publisher.publish(TFMessage(transforms=list(transforms)))
+
+
+class StaticTransformBroadcaster:
+    """tf2_ros.StaticTransformBroadcaster: every static transform sent so far (the newest per child frame) in
+    one TFMessage, latched on /tf_static."""
+
+    def __init__(self, node: Node, qos=None):
+        self.publisher = node.create_publisher(
+            TFMessage, "/tf_static", qos or QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.transforms: dict[str, object] = {}
+
+    def sendTransform(self, transform) -> None:  # noqa: N802 - tf2_ros's name
+        for t in transform if isinstance(transform, (list, tuple)) else [transform]:
+            self.transforms[t.child_frame_id] = t
+        self.publisher.publish(TFMessage(transforms=list(self.transforms.values())))
 
 
 # -- executors --------------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from nodes.ros import msgs
 
+IDENTITY = tuple(float(v) for v in np.eye(4).ravel())  # T = I as the 16 floats of a DOUBLE_ARRAY parameter
 # sensor_msgs/Image encoding -> (pixel dtype, channels)
 ENCODINGS = {"rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "mono8": (np.uint8, 1), "mono16": (np.uint16, 1),
              "16UC1": (np.uint16, 1), "32FC1": (np.float32, 1)}

@@ -27,7 +27,7 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nodes.conversions import image_to_numpy, matrix_to_pose, pose_to_matrix
+from nodes.conversions import IDENTITY, image_to_numpy, matrix_to_pose, pose_to_matrix
 from nodes.ros import Node, declare, finish, latched, msgs, run_node
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
@@ -42,7 +42,7 @@ PARAMETERS = (
     ("host", "127.0.0.1"), ("library", ""), ("objects", "noodle_cup_red"), ("attempts", 20), ("seed", 0),
     ("spawn_x", [-0.55, -0.38]), ("spawn_y", [-0.12, 0.12]), ("settle_s", 1.0), ("timeout_s", 60.0),
     ("detect_timeout_s", 10.0),
-    ("hand_eye", [float(v) for v in np.eye(4).ravel()]), ("pose_source", "dope"), ("report", "out/sim_grasp"))
+    ("hand_eye", IDENTITY), ("pose_source", "dope"), ("report", "out/sim_grasp"))
 
 
 class EvaluatorNode(Node):

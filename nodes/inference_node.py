@@ -92,8 +92,10 @@ class InferenceNode(Node):
         self.images += 1
         obj = self.model.object
         array = msgs.Detection3DArray(header=msg.header)
-        for pose in poses:
+        transforms = []
+        for k, pose in enumerate(poses):
             T = pose.refined if pose.refined is not None else pose.T
+            transforms.append(matrix_to_transform(T, msg.header.frame_id, f"{obj.name}_{k}", msg.header.stamp))
             hypothesis = msgs.ObjectHypothesisWithPose()
             hypothesis.hypothesis.class_id, hypothesis.hypothesis.score = obj.name, pose.score
             hypothesis.pose.pose = matrix_to_pose(T)
@@ -102,10 +104,8 @@ class InferenceNode(Node):
             detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = (float(v) for v in obj.bbox_size)
             array.detections.append(detection)
         self.detections_pub.publish(array)
-        if poses:
-            self.tf.sendTransform([matrix_to_transform(p.refined if p.refined is not None else p.T, msg.header.frame_id,
-                                                       f"{obj.name}_{k}", msg.header.stamp)
-                                   for k, p in enumerate(poses)])
+        if transforms:
+            self.tf.sendTransform(transforms)
         overlay = draw_poses(image, self.K, poses, obj)
         self.overlay_pub.publish(numpy_to_image(overlay, "rgb8", msg.header))
         best = {"raw": next((p.T for p in poses if p.T is not None), None),

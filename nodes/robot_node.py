@@ -24,7 +24,7 @@ import threading
 
 import numpy as np
 
-from nodes.conversions import matrix_to_transform, pose_to_matrix
+from nodes.conversions import IDENTITY, matrix_to_transform, pose_to_matrix
 from nodes.ros import Node, StaticTransformBroadcaster, declare, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import IMPLAUSIBLE_DETAIL
@@ -36,7 +36,7 @@ from robot_bridge.plausibility import plan_problem, pose_problem
 from robot_bridge.safety import SafetyEnvelope
 
 PARAMETERS = (
-    ("host", "127.0.0.1"), ("hand_eye", [float(v) for v in np.eye(4).ravel()]), ("basket", [-0.15, -0.45, 0.0]),
+    ("host", "127.0.0.1"), ("hand_eye", IDENTITY), ("basket", [-0.15, -0.45, 0.0]),
     ("table_z", 0.0),
     ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
     ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),

@@ -19,6 +19,7 @@ try:  # pragma: no cover - exercised only where ROS 2 is installed
     from std_msgs.msg import Header, String
     from std_srvs.srv import Trigger
     from tf2_msgs.msg import TFMessage
+    from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
     from vision_msgs.msg import Detection3D, Detection3DArray, ObjectHypothesisWithPose
 
     msgs = types.SimpleNamespace(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped,
@@ -30,7 +31,15 @@ try:  # pragma: no cover - exercised only where ROS 2 is installed
 except ImportError:
     from nodes import compat as rclpy
     from nodes import msgs
-    from nodes.compat import MultiThreadedExecutor, Node, Parameter, QoSProfile, SingleThreadedExecutor
+    from nodes.compat import (
+        MultiThreadedExecutor,
+        Node,
+        Parameter,
+        QoSProfile,
+        SingleThreadedExecutor,
+        StaticTransformBroadcaster,
+        TransformBroadcaster,
+    )
 
     REAL_ROS = False
 
@@ -50,33 +59,6 @@ def declare(node, parameters: tuple) -> dict:
     default as rclpy does (a float parameter refuses an int, an array parameter a string): a node module's
     ``PARAMETERS`` table, which tests check the launch files against."""
     return {name: node.declare_parameter(name, default).value for name, default in parameters}
-
-
-if REAL_ROS:  # pragma: no cover
-    from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
-else:
-    class TransformBroadcaster:
-        """tf2_ros.TransformBroadcaster on the stand-in: tf2_msgs/TFMessage on /tf, as the real one sends."""
-
-        def __init__(self, node, qos=None):
-            self.publisher = node.create_publisher(msgs.TFMessage, "/tf", qos or QoSProfile(depth=100))
-
-        def sendTransform(self, transform) -> None:  # noqa: N802 - tf2_ros's name
-            transforms = transform if isinstance(transform, (list, tuple)) else [transform]
-            self.publisher.publish(msgs.TFMessage(transforms=list(transforms)))
-
-    class StaticTransformBroadcaster:
-        """tf2_ros.StaticTransformBroadcaster on the stand-in: every static transform sent so far (the newest
-        per child frame) in one TFMessage, latched on /tf_static."""
-
-        def __init__(self, node, qos=None):
-            self.publisher = node.create_publisher(msgs.TFMessage, "/tf_static", qos or latched(1))
-            self.transforms: dict[str, object] = {}
-
-        def sendTransform(self, transform) -> None:  # noqa: N802 - tf2_ros's name
-            for t in transform if isinstance(transform, (list, tuple)) else [transform]:
-                self.transforms[t.child_frame_id] = t
-            self.publisher.publish(msgs.TFMessage(transforms=list(self.transforms.values())))
 
 
 def finish(node) -> None:
