@@ -106,3 +106,27 @@ def test_masks_counts_and_boxes_are_the_models_by_bop_definitions(labelled):
     # 0.16 mm off the surface (median) at 320x240, 0.39 mm at 640x480 (centre depths gave 1.0 mm at 320x240)
     depth_mm = np.abs(np.concatenate([r["depth_mm"] for r in rows]))
     assert np.median(depth_mm) <= 1.0
+
+
+def test_a_test_split_lists_exactly_the_instances_seen_at_least_ten_percent(thin_and_concave_library, tmp_path):
+    # bop_toolkit's test targets: per image and object, the instances with visib_fract >= 0.1, counted here
+    # from the scene_gt_info.json the generator wrote
+    cfg = load_config(None, [f"output={tmp_path / 'ds'}", f"library={thin_and_concave_library.root}", "split=test",
+                             "scenes=2", "frames_per_scene=3", "camera.width=160", "camera.height=120",
+                             "device=cpu", "environments=[wooden_table]",
+                             "objects=[{asset: noodle_cup_red, count: [1, 1]}, {asset: rod, count: [1, 2]},"
+                             " {asset: ring, count: [1, 1]}]"])
+    root = generate(cfg)
+    expected = {}
+    for scene in sorted((root / "test").iterdir()):
+        gt = json.loads((scene / "scene_gt.json").read_text())
+        info = json.loads((scene / "scene_gt_info.json").read_text())
+        for im_id in gt:
+            for entry, entry_info in zip(gt[im_id], info[im_id]):
+                if entry_info["visib_fract"] >= 0.1:
+                    key = (int(scene.name), int(im_id), entry["obj_id"])
+                    expected[key] = expected.get(key, 0) + 1
+    targets = json.loads((root / "test_targets_bop19.json").read_text())
+    got = {(t["scene_id"], t["im_id"], t["obj_id"]): t["inst_count"] for t in targets}
+    assert got == expected and len(targets) == len(got) and sum(got.values()) >= 6
+    assert not (root / "train_pbr").exists()
