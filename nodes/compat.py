@@ -16,6 +16,7 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import logging
+import re
 import threading
 import time
 import warnings
@@ -86,6 +87,38 @@ def _qos(qos) -> QoSProfile:
     return QoSProfile(depth=qos) if isinstance(qos, int) else qos
 
 
+def incompatible_policy(offered: QoSProfile, requested: QoSProfile) -> str | None:
+    """The policy that keeps a publisher offering ``offered`` from a subscription requesting ``requested``
+    (DDS's request-offered rules, as ROS 2 applies them), None when they match."""
+    if offered.reliability == ReliabilityPolicy.BEST_EFFORT and requested.reliability == ReliabilityPolicy.RELIABLE:
+        return "RELIABILITY"
+    if offered.durability == DurabilityPolicy.VOLATILE and requested.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+        return "DURABILITY"
+    return None
+
+
+# -- names ------------------------------------------------------------------------------------------------
+class InvalidTopicNameException(Exception):
+    """rclpy.exceptions.InvalidTopicNameException"""
+
+
+_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
+
+
+def expand_topic_name(name: str, node_name: str, namespace: str) -> str:
+    """The fully qualified name of topic or service ``name`` as ROS 2 expands it: relative names go under the
+    node's namespace, ``~`` is the node's own; InvalidTopicNameException when it breaks ROS 2's name rules
+    (tokens of letters, digits and underscores not starting with a digit, no ``__``, no trailing ``/``)."""
+    base = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    if name.startswith("~"):
+        full = f"{base}/{node_name}{name[1:]}"
+    else:
+        full = name if name.startswith("/") else f"{base}/{name}"
+    if not re.fullmatch(f"(/{_TOKEN})+", full) or "__" in full:
+        raise InvalidTopicNameException(f"invalid topic name {name!r} (expanded: {full!r})")
+    return full
+
+
 # -- context ----------------------------------------------------------------------------------------------
 class Context:
     """The graph of one init(): topics -> subscriptions, services by name, latched messages. A context made
@@ -97,6 +130,7 @@ class Context:
         if graph is None:
             self.lock = threading.RLock()
             self.subscriptions: dict[str, list[Subscription]] = collections.defaultdict(list)
+            self.publishers: dict[str, list[Publisher]] = collections.defaultdict(list)
             self.services: dict[str, Service] = {}
             # topic -> {publisher: its last message}, for TRANSIENT_LOCAL publishers (each keeps its own, as a
             # DDS writer does)
@@ -104,6 +138,7 @@ class Context:
             self.wake = threading.Condition(self.lock)
         else:
             self.lock, self.subscriptions, self.services = graph.lock, graph.subscriptions, graph.services
+            self.publishers = graph.publishers
             self.latched, self.wake = graph.latched, graph.wake
         self.owns_graph = graph is None
         self.running = False
@@ -131,6 +166,7 @@ def shutdown(context: Context | None = None) -> None:
     if ctx.owns_graph:
         with ctx.lock:
             ctx.subscriptions.clear()
+            ctx.publishers.clear()
             ctx.services.clear()
             ctx.latched.clear()
 
@@ -184,16 +220,45 @@ class Publisher:
             if self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
                 ctx.latched[self.topic][self] = msg
             for sub in ctx.subscriptions.get(self.topic, []):
-                sub.queue.append(msg)
+                if matched(self, sub):
+                    sub.queue.append(msg)
         ctx.notify()
 
     def get_subscription_count(self) -> int:
-        return len(self.node.context.subscriptions.get(self.topic, []))
+        return sum(matched(self, sub) for sub in self.node.context.subscriptions.get(self.topic, []))
 
     def destroy(self) -> None:
         with self.node.context.lock:
             self.node.context.latched.get(self.topic, {}).pop(self, None)  # its stored message goes with it
+            self.node.context.publishers[self.topic].remove(self)
         self.node.publishers.remove(self)
+
+
+@dataclass
+class TopicEndpointInfo:
+    """rclpy.topic_endpoint_info.TopicEndpointInfo of a publisher (the fields the nodes read)."""
+
+    node_name: str
+    node_namespace: str
+    topic_type: str
+    qos_profile: QoSProfile
+
+
+def matched(pub: Publisher, sub: "Subscription") -> bool:
+    """Whether ``sub`` receives what ``pub`` publishes: same topic type and compatible QoS."""
+    return pub.msg_type is sub.msg_type and incompatible_policy(pub.qos, sub.qos) is None
+
+
+def _warn_unmatched(pub: Publisher, sub: "Subscription") -> None:
+    """Log, as rclpy's default QoS event handlers do, why ``pub`` and ``sub`` on one topic do not match."""
+    if pub.msg_type is not sub.msg_type:
+        sub.node.get_logger().warning(
+            f"topic {sub.topic}: publisher of {pub.node.get_name()} has type {pub.msg_type.__name__}, subscription "
+            f"of {sub.node.get_name()} {sub.msg_type.__name__}: no messages will pass")
+    elif (policy := incompatible_policy(pub.qos, sub.qos)) is not None:
+        sub.node.get_logger().warning(
+            f"New publisher discovered on topic '{sub.topic}', offering incompatible QoS. No messages will be "
+            f"received from it. Last incompatible policy: {policy}")
 
 
 class Subscription:
@@ -201,8 +266,11 @@ class Subscription:
         self.node, self.msg_type, self.topic, self.callback = node, msg_type, topic, callback
         depth = None if qos.history == HistoryPolicy.KEEP_ALL else max(qos.depth, 1)
         self.queue: collections.deque = collections.deque(maxlen=depth)
-        for message in node.context.latched.get(topic, {}).values():
-            self.queue.append(message)
+        self.qos = qos
+        if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:  # a volatile reader gets no history
+            for pub, message in node.context.latched.get(topic, {}).items():
+                if matched(pub, self):
+                    self.queue.append(message)
 
     def destroy(self) -> None:
         with self.node.context.lock:
@@ -379,7 +447,7 @@ class Time:
     nanoseconds: int = 0
 
     def to_msg(self):
-        from nodes.msgs import TimeMsg
+        from nodes.msgs import Time as TimeMsg
 
         return TimeMsg(sec=self.nanoseconds // 1_000_000_000, nanosec=self.nanoseconds % 1_000_000_000)
 
@@ -409,17 +477,43 @@ class Node:
     def get_clock(self) -> Clock:
         return self._clock
 
+    def resolve_topic_name(self, topic: str) -> str:
+        return expand_topic_name(topic, self._name, self.namespace)
+
     def create_publisher(self, msg_type, topic: str, qos_profile) -> Publisher:
-        pub = Publisher(self, msg_type, topic, _qos(qos_profile))
+        pub = Publisher(self, msg_type, self.resolve_topic_name(topic), _qos(qos_profile))
+        with self.context.lock:
+            self.context.publishers[pub.topic].append(pub)
+            for sub in self.context.subscriptions.get(pub.topic, []):
+                _warn_unmatched(pub, sub)
         self.publishers.append(pub)
         return pub
 
     def create_subscription(self, msg_type, topic: str, callback, qos_profile) -> Subscription:
-        sub = Subscription(self, msg_type, topic, callback, _qos(qos_profile))
+        sub = Subscription(self, msg_type, self.resolve_topic_name(topic), callback, _qos(qos_profile))
         with self.context.lock:
-            self.context.subscriptions[topic].append(sub)
+            self.context.subscriptions[sub.topic].append(sub)
+            for pub in self.context.publishers.get(sub.topic, []):
+                _warn_unmatched(pub, sub)
         self.subscriptions.append(sub)
         return sub
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
+        """[(fully qualified topic, ["pkg/msg/Type", ...])] of every publisher and subscription in the graph,
+        sorted by name, as rclpy gives it."""
+        with self.context.lock:
+            types = collections.defaultdict(set)
+            for table in (self.context.publishers, self.context.subscriptions):
+                for topic, entities in table.items():
+                    types[topic].update(entity.msg_type.TYPE_NAME for entity in entities)
+        return [(topic, sorted(names)) for topic, names in sorted(types.items()) if names]
+
+    def get_publishers_info_by_topic(self, topic_name: str) -> list["TopicEndpointInfo"]:
+        """What each publisher on ``topic_name`` offers (its node, type and QoS), as rclpy gives it."""
+        with self.context.lock:
+            publishers = list(self.context.publishers.get(self.resolve_topic_name(topic_name), []))
+        return [TopicEndpointInfo(pub.node.get_name(), pub.node.namespace or "/", pub.msg_type.TYPE_NAME, pub.qos)
+                for pub in publishers]
 
     def create_timer(self, timer_period_sec: float, callback) -> Timer:
         timer = Timer(self, timer_period_sec, callback)
@@ -427,6 +521,7 @@ class Node:
         return timer
 
     def create_service(self, srv_type, srv_name: str, callback) -> Service:
+        srv_name = self.resolve_topic_name(srv_name)
         with self.context.lock:
             if srv_name in self.context.services:
                 raise RuntimeError(f"service {srv_name} already exists")
@@ -436,7 +531,7 @@ class Node:
         return service
 
     def create_client(self, srv_type, srv_name: str) -> Client:
-        client = Client(self, srv_type, srv_name)
+        client = Client(self, srv_type, self.resolve_topic_name(srv_name))
         self.clients.append(client)
         return client
 
@@ -504,6 +599,8 @@ class Node:
                     del self.context.services[service.name]
             for pub in self.publishers:
                 self.context.latched.get(pub.topic, {}).pop(pub, None)
+                if pub in self.context.publishers[pub.topic]:
+                    self.context.publishers[pub.topic].remove(pub)
         self.publishers, self.subscriptions, self.timers = [], [], []
 
     # work the executor can do now: [(callable, args)]

@@ -5,6 +5,8 @@ stand-in's otherwise), so node code calls them the same way on both.
 
 from __future__ import annotations
 
+from array import array as Array
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -29,7 +31,7 @@ def numpy_to_image(array: np.ndarray, encoding: str, header=None):
         msg.header = header
     msg.height, msg.width, msg.encoding = array.shape[0], array.shape[1], encoding
     msg.is_bigendian, msg.step = 0, array.shape[1] * channels * array.itemsize
-    msg.data = array.tobytes()
+    msg.data = Array("B", array.tobytes())  # uint8[] as rosidl holds it
     return msg
 
 
@@ -41,7 +43,7 @@ def image_to_numpy(msg) -> np.ndarray:
     dtype, channels = ENCODINGS[msg.encoding]
     dtype = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
     row = msg.width * channels * dtype.itemsize
-    data = bytes(msg.data)
+    data = memoryview(msg.data).cast("B")
     if msg.step < row or len(data) < msg.step * msg.height:
         raise ValueError(f"image data of {len(data)} bytes, step {msg.step}, does not hold {msg.height} rows of "
                          f"{row} bytes")

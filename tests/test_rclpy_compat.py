@@ -145,16 +145,17 @@ def test_camera_info_carries_k_p_r_d_and_the_distortion_model():
     from nodes.conversions import camera_info
 
     K = np.array([[554.3, 0.0, 319.5], [0.0, 553.9, 241.2], [0.0, 0.0, 1.0]])
-    assert msgs.CameraInfo().d == [] and msgs.CameraInfo().r == [0.0] * 9  # ROS 2's defaults: set them
+    assert list(msgs.CameraInfo().d) == [] and list(msgs.CameraInfo().r) == [0.0] * 9  # ROS 2's defaults: set them
     info = camera_info(K, 640, 480, msgs.Header(frame_id="camera"))
     P = np.array(info.p).reshape(3, 4)
     np.testing.assert_array_equal(P[:, :3], K)
     assert (P[:, 3] == 0).all() and np.array_equal(np.array(info.r).reshape(3, 3), np.eye(3))
-    assert info.distortion_model == "plumb_bob" and info.d == [0.0] * 5 and (info.width, info.height) == (640, 480)
+    assert info.distortion_model == "plumb_bob" and list(info.d) == [0.0] * 5
+    assert (info.width, info.height) == (640, 480)
     # a point in the camera frame projects to the same pixel through K and through P
     X = np.array([0.1, -0.05, 0.8])
     np.testing.assert_allclose((K @ X)[:2] / X[2], (P @ np.append(X, 1.0))[:2] / X[2])
-    assert camera_info(K, 640, 480, distortion=[0.1, -0.2, 0.0, 0.0, 0.05]).d == [0.1, -0.2, 0.0, 0.0, 0.05]
+    assert camera_info(K, 640, 480, distortion=[0.1, -0.2, 0.0, 0.0, 0.05]).d.tolist() == [0.1, -0.2, 0.0, 0.0, 0.05]
 
 
 def test_a_late_subscriber_gets_each_latched_publishers_last_message():
@@ -164,7 +165,7 @@ def test_a_late_subscriber_gets_each_latched_publishers_last_message():
     try:
         a, b, late = Node("a"), Node("b"), Node("late")
         for node, text in ((a, "a1"), (a, "a2"), (b, "b1")):
-            pub = next((p for p in node.publishers if p.topic == "state"), None) or \
+            pub = next((p for p in node.publishers if p.topic == "/state"), None) or \
                 node.create_publisher(msgs.String, "state", latched())
             pub.publish(msgs.String(data=text))
         got = []
@@ -180,5 +181,53 @@ def test_a_late_subscriber_gets_each_latched_publishers_last_message():
         executor.add_node(later)
         executor.spin_once(0.1)
         assert got2 == ["b1"]  # a destroyed publisher's message is gone with it
+    finally:
+        rclpy.shutdown()
+
+
+def test_qos_and_type_mismatches_pass_nothing_as_in_ros2(caplog):
+    """DDS's request-offered rules: a best-effort publisher reaches no reliable subscription, a volatile
+    subscription gets no latched history, a subscription of another type gets nothing; each is logged."""
+    from nodes.compat import QoSProfile, ReliabilityPolicy
+    from nodes.ros import latched
+
+    rclpy.init()
+    try:
+        node = Node("qos")
+        best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        got = {name: [] for name in ("reliable", "best_effort", "volatile", "latched", "other_type")}
+        node.create_subscription(msgs.String, "a", lambda m: got["reliable"].append(m.data), 10)
+        node.create_subscription(msgs.String, "a", lambda m: got["best_effort"].append(m.data), best_effort)
+        pub = node.create_publisher(msgs.String, "a", best_effort)
+        assert "incompatible QoS" in caplog.text and "RELIABILITY" in caplog.text
+        assert pub.get_subscription_count() == 1
+        pub.publish(msgs.String(data="x"))
+        state = node.create_publisher(msgs.String, "state", latched())
+        state.publish(msgs.String(data="s"))
+        node.create_subscription(msgs.String, "state", lambda m: got["volatile"].append(m.data), 10)
+        node.create_subscription(msgs.String, "state", lambda m: got["latched"].append(m.data), latched())
+        node.create_subscription(msgs.Header, "state", lambda m: got["other_type"].append(m), latched())
+        assert "type String" in caplog.text
+        for _ in range(4):
+            rclpy.spin_once(node, timeout_sec=0.05)
+        assert got == {"reliable": [], "best_effort": ["x"], "volatile": [], "latched": ["s"], "other_type": []}
+        assert dict(node.get_topic_names_and_types()) == {
+            "/a": ["std_msgs/msg/String"], "/state": ["std_msgs/msg/Header", "std_msgs/msg/String"]}
+    finally:
+        rclpy.shutdown()
+
+
+def test_topic_names_expand_and_break_as_in_ros2():
+    from nodes.compat import InvalidTopicNameException
+
+    rclpy.init()
+    try:
+        node = Node("cam", namespace="/left")
+        assert node.resolve_topic_name("image") == "/left/image"
+        assert node.resolve_topic_name("/tf") == "/tf"
+        assert node.resolve_topic_name("~/info") == "/left/cam/info"
+        for bad in ("2image", "image/", "a__b", "with space", "a//b"):
+            with pytest.raises(InvalidTopicNameException):
+                node.create_publisher(msgs.String, bad, 1)
     finally:
         rclpy.shutdown()
