@@ -9,7 +9,7 @@ from setuptools import setup
 
 PACKAGE = "pegasus"
 NODES = ("camera_node", "inference_node", "robot_node", "evaluator_node", "generator_node", "trainer_node",
-         "sim_controller_node")
+         "sim_controller_node", "recorder_node")
 
 setup(
     python_requires=">=3.10",

@@ -6,7 +6,8 @@ pegasus launch launch/sim_pick_place.launch.py model:=MODEL.onnx [attempts:=20 o
 (or `pegasus sim-grasp`). The cell: the environment's table top is the world's z = 0; the robot's base
 stands on it at world (0.45, 0, 0), facing -x; objects appear in base x -0.55..-0.38, y -0.12..0.12; the
 basket stands at base (-0.25, -0.28); the camera looks down at the pick area from world (0, -0.35, 0.55)
-and renders depth too, against which the inference node refines DOPE's poses (``use_pose``).
+and renders depth too, against which the inference node refines DOPE's poses (``use_pose``). With
+``record:=NAME`` every topic goes into the rosbag2 bag NAME (MCAP).
 """
 
 import numpy as np
@@ -15,6 +16,7 @@ from pegasus_gen.geometry.cameras import look_at
 
 try:
     from launch.actions import DeclareLaunchArgument, Shutdown
+    from launch.conditions import LaunchConfigurationNotEquals
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
     from launch_ros.parameter_descriptions import ParameterValue
@@ -24,6 +26,7 @@ except ImportError:
     from nodes.launch import (
         DeclareLaunchArgument,
         LaunchConfiguration,
+        LaunchConfigurationNotEquals,
         LaunchDescription,
         Node,
         ParameterValue,
@@ -53,6 +56,8 @@ def generate_launch_description():
         DeclareLaunchArgument("report", default_value="out/sim_grasp"),
         DeclareLaunchArgument("seed", default_value="0"),
         DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
+        DeclareLaunchArgument("record", default_value="",
+                              description="rosbag2 bag (MCAP) of every topic to create; empty: no recording"),
         Node(package="pegasus", executable="sim_controller_node", on_exit=Shutdown(), parameters=[{
             "host": arg("host"), "time_scale": ParameterValue(arg("time_scale"), value_type=float),
             "basket": BASKET}]),
@@ -70,4 +75,6 @@ def generate_launch_description():
             "attempts": arg("attempts"),
             "seed": arg("seed"), "hand_eye": T_BASE_CAM.ravel().tolist(), "report": arg("report"),
             "pose_source": arg("pose_source")}]),
+        Node(package="pegasus", executable="recorder_node", condition=LaunchConfigurationNotEquals("record", ""),
+             parameters=[{"path": ParameterValue(arg("record"), value_type=str)}]),
     ])

@@ -54,9 +54,20 @@ class Shutdown:
 
 
 @dataclass
+class LaunchConfigurationNotEquals:
+    """launch.conditions.LaunchConfigurationNotEquals: true when the argument's value is not ``expected_value``."""
+
+    launch_configuration_name: str
+    expected_value: str | None
+
+    def evaluate(self, arguments: dict[str, str]) -> bool:
+        return arguments[self.launch_configuration_name] != self.expected_value
+
+
+@dataclass
 class Node:
     """launch_ros.actions.Node: ``executable`` names the module ``nodes.<executable>``; ``on_exit`` (Shutdown)
-    ends the launch when the node ends."""
+    ends the launch when the node ends; a ``condition`` that evaluates false leaves the node out."""
 
     package: str = "pegasus"
     executable: str = ""
@@ -65,6 +76,7 @@ class Node:
     output: str = "screen"
     arguments: list = field(default_factory=list)
     on_exit: object = None
+    condition: LaunchConfigurationNotEquals | None = None
 
 
 class LaunchDescription:
@@ -216,7 +228,7 @@ def build_nodes(description: LaunchDescription, arguments: dict[str, str], graph
     built = []
     try:
         for entity in description.entities:
-            if not isinstance(entity, Node):
+            if not isinstance(entity, Node) or (entity.condition and not entity.condition.evaluate(arguments)):
                 continue
             try:
                 module = importlib.import_module(f"nodes.{entity.executable}")

@@ -14,7 +14,9 @@ try:  # pragma: no cover - exercised only where ROS 2 is installed
     from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
-    from rclpy.qos import QoSProfile
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import serialize_message as serialize
+    from rosidl_runtime_py.utilities import get_message as message_type
     from sensor_msgs.msg import CameraInfo, Image
     from std_msgs.msg import Header, String
     from std_srvs.srv import Trigger
@@ -32,14 +34,18 @@ except ImportError:
     from nodes import compat as rclpy
     from nodes import msgs
     from nodes.compat import (
+        DurabilityPolicy,
         MultiThreadedExecutor,
         Node,
         Parameter,
         QoSProfile,
+        ReliabilityPolicy,
         SingleThreadedExecutor,
         StaticTransformBroadcaster,
         TransformBroadcaster,
     )
+    from nodes.msgs import message_class as message_type
+    from nodes.msgs import serialize
 
     REAL_ROS = False
 
@@ -47,10 +53,6 @@ except ImportError:
 
 def latched(depth: int = 1):
     """QoS of a topic whose last message reaches late subscribers too (transient local)."""
-    if REAL_ROS:  # pragma: no cover
-        from rclpy.qos import DurabilityPolicy
-    else:
-        from nodes.compat import DurabilityPolicy
     return QoSProfile(depth=depth, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
@@ -83,4 +85,5 @@ def run_node(node_class, args=None) -> None:
 
 
 __all__ = ["run_node", "finish", "declare", "TransformBroadcaster", "StaticTransformBroadcaster", "latched", "rclpy",
-           "Node", "QoSProfile", "MultiThreadedExecutor", "SingleThreadedExecutor", "Parameter", "msgs", "REAL_ROS"]
+           "Node", "QoSProfile", "ReliabilityPolicy", "DurabilityPolicy", "MultiThreadedExecutor",
+           "SingleThreadedExecutor", "Parameter", "msgs", "message_type", "serialize", "REAL_ROS"]

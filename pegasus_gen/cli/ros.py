@@ -30,11 +30,19 @@ def cmd_sim_grasp(args) -> int:
         raise PegasusError("sim-grasp: give --model MODEL.onnx (or --ground-truth to measure grasping alone)")
     if args.library:
         overrides.append(f"library:={args.library}")
+    bag = None
+    if args.record:
+        from nodes.bag import bag_directory
+
+        bag = bag_directory(args.record)  # refused here, before anything runs, when it exists
+        overrides.append(f"record:={bag}")
     run("sim_pick_place.launch.py", overrides)
     report = json.loads((Path(args.out) / "report.json").read_text())
     print(f"sim-grasp ({report['pose_source']} poses): {report['successes']} of {report['attempts']} in the basket; "
           f"failures: {report['failure_causes'] or 'none'}")
     print(f"report: {Path(args.out) / 'report.json'}    strip: {Path(args.out) / 'strip.png'}")
+    if bag is not None:
+        print(f"bag: {bag} (ros2 bag info/play it; Foxglove opens the .mcap inside)")
     return 0
 
 
@@ -56,6 +64,8 @@ def add_commands(sub) -> None:
     p.add_argument("--attempts", type=int, default=20)
     p.add_argument("--objects", default="noodle_cup_red,noodle_cup_curry", help="asset names, comma-separated")
     p.add_argument("--out", default="out/sim_grasp", help="report folder")
+    p.add_argument("--record", metavar="BAG",
+                   help="record every topic into this new rosbag2 bag (MCAP; NAME.mcap makes NAME/NAME.mcap)")
     options.add_host(p)
     p.add_argument("--time-scale", type=float, default=2.0, help="simulated seconds per second")
     options.add_library(p)
