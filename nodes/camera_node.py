@@ -1,6 +1,6 @@
 """camera_node: publishes ``image`` (sensor_msgs/Image, rgb8) and ``camera_info`` at ``rate`` Hz, and
-``depth`` (32FC1, metres along the optical axis, 0 = none; same header as its image, published before it)
-when the source has depth (``sim``).
+``depth`` (32FC1, metres along the optical axis, 0 = none, aligned to the image; same header as its image,
+published before it) when the source has depth (``sim``, ``oak`` with ``depth``).
 
 Parameters: ``source`` = folder | oak | sim; ``folder`` (images, in name order, looping when ``loop``; with
 ``wait_for_folder`` a folder that does not hold images yet is waited for, as in the generate-train-deploy
@@ -9,9 +9,16 @@ loop);
 simulated controller), ``library``, ``environment``, ``T_world_base`` and ``T_world_cam`` (16 numbers each,
 row-major) — each frame renders the environment's splats and every object of the simulated cell at its
 current pose (asset name = the sim object's name up to '#'), with the splat renderer on ``device``;
-``rate`` (Hz); ``frame_id``; ``width``/``height`` (OAK output size). With ``sim`` it also broadcasts the
-static transform world -> base_link (T_world_base); robot_node adds base_link -> camera (its hand-eye). The
-OAK source uses depthai 3 (when installed) and fails with a clear message when no device is attached.
+``rate`` (Hz); ``frame_id``; ``width``/``height`` (the sim's image size; an OAK's frames are ``width`` wide,
+16:9); ``depth`` (the OAK's stereo depth too). With ``sim`` it also broadcasts the static transform world ->
+base_link (T_world_base); robot_node adds base_link -> camera (its hand-eye). The OAK source
+(``nodes.oak``, depthai 2) publishes each new frame once, stamped with its exposure, with the device's
+calibrated intrinsics and rational_polynomial distortion; it fails with a clear message when depthai is
+missing or no device is attached.
+
+A source has ``read()`` -> (RGB [H, W, 3] uint8, depth [H, W] float32 m or None, stamp s since the epoch or
+None for now), or None when it has no new frame (``finished`` once it never will), ``intrinsics(w, h)``
+(K [3, 3] or None), ``distortion`` (coefficients or None) and ``distortion_model``.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import cv2
 import numpy as np
 
 from nodes.conversions import IDENTITY, camera_info, matrix_to_transform, numpy_to_image
+from nodes.oak import OakCamera
 from nodes.ros import Node, StaticTransformBroadcaster, declare, finish, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
@@ -31,56 +39,36 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 class FolderSource:
     """Images of a folder in name order as RGB arrays."""
 
+    distortion, distortion_model = None, "plumb_bob"
+
     def __init__(self, folder: str, loop: bool = True):
         self.paths = sorted(p for p in Path(folder).glob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
         if not self.paths:
             raise PegasusError(f"camera_node: no images ({', '.join(IMAGE_SUFFIXES)}) in {folder!r}")
-        self.loop, self.index = loop, 0
+        self.loop, self.index, self.finished = loop, 0, False
 
-    def read(self) -> tuple[np.ndarray, None] | None:
-        """(the next image [H, W, 3] uint8 RGB, no depth), None at the end."""
+    def read(self) -> tuple[np.ndarray, None, None] | None:
+        """(the next image [H, W, 3] uint8 RGB, no depth, no stamp), None at the end (then ``finished``)."""
         if self.index >= len(self.paths):
             if not self.loop:
+                self.finished = True
                 return None
             self.index = 0
         image = cv2.imread(str(self.paths[self.index]), cv2.IMREAD_COLOR)
         if image is None:
             raise PegasusError(f"camera_node: cannot read {self.paths[self.index]}")
         self.index += 1
-        return np.ascontiguousarray(image[..., ::-1]), None
+        return np.ascontiguousarray(image[..., ::-1]), None, None
 
     def intrinsics(self, width: int, height: int):
         return None
 
 
-class OakSource:
-    """An OAK camera's colour stream through depthai 3."""
-
-    def __init__(self, width: int, height: int):
-        try:
-            import depthai as dai
-        except ImportError as exc:
-            raise PegasusError("camera_node: source 'oak' needs depthai (pip install depthai)") from exc
-        try:
-            self.pipeline = dai.Pipeline()
-            cam = self.pipeline.create(dai.node.Camera).build(dai.CameraBoardSocket.CAM_A)
-            self.queue = cam.requestOutput((width, height), dai.ImgFrame.Type.BGR888i).createOutputQueue()
-            self.pipeline.start()
-            calib = self.pipeline.getDefaultDevice().readCalibration()
-            self.K = np.array(calib.getCameraIntrinsics(dai.CameraBoardSocket.CAM_A, width, height))
-        except RuntimeError as exc:
-            raise PegasusError(f"camera_node: no OAK camera could be opened ({exc}); is one attached?") from exc
-
-    def read(self) -> tuple[np.ndarray, None]:
-        return np.ascontiguousarray(self.queue.get().getCvFrame()[..., ::-1]), None
-
-    def intrinsics(self, width: int, height: int):
-        return self.K
-
-
 class SimSource:
     """Renders the simulated cell from splats: the environment plus each object at the pose the simulated
     controller reports (its PyBullet state), so the image is the digital twin of the physics."""
+
+    finished, distortion, distortion_model = False, None, "plumb_bob"
 
     def __init__(self, host: str, library: str, environment: str, T_world_base, T_world_cam, width: int,
                  height: int, K: np.ndarray, device: str):
@@ -106,8 +94,9 @@ class SimSource:
                 continue
         return poses
 
-    def read(self) -> tuple[np.ndarray, np.ndarray]:
-        """The cell as the camera sees it: RGB [H, W, 3] uint8 and depth [H, W] float32 metres (0 = none)."""
+    def read(self) -> tuple[np.ndarray, np.ndarray, None]:
+        """The cell as the camera sees it: RGB [H, W, 3] uint8, depth [H, W] float32 metres (0 = none), no
+        stamp (rendered now)."""
         from pegasus_gen.io.images import rgb_to_uint8
         from pegasus_gen.render.renderer import render
 
@@ -118,7 +107,7 @@ class SimSource:
                 self.splats[asset] = self.library.get(asset).splats
             parts.append(self.splats[asset].transformed(T).with_label(k + 1))
         out = render(parts, self.K, self.T_cam_world, self.width, self.height, device=self.device)
-        return rgb_to_uint8(out.rgb), np.nan_to_num(out.depth, nan=0.0, posinf=0.0).astype(np.float32)
+        return rgb_to_uint8(out.rgb), np.nan_to_num(out.depth, nan=0.0, posinf=0.0).astype(np.float32), None
 
     def intrinsics(self, width: int, height: int):
         return self.K
@@ -129,7 +118,7 @@ PARAMETERS = (
     ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480),
     ("wait_for_folder", False), ("host", "127.0.0.1"), ("library", ""), ("environment", "wooden_table"),
     ("T_world_base", IDENTITY), ("T_world_cam", IDENTITY),
-    ("device", "auto"))
+    ("device", "auto"), ("depth", True))
 
 
 class CameraNode(Node):
@@ -141,7 +130,10 @@ class CameraNode(Node):
             if not p["wait_for_folder"]:
                 self.source = FolderSource(p["folder"], p["loop"])
         elif p["source"] == "oak":
-            self.source = OakSource(int(p["width"]), int(p["height"]))
+            self.source = OakCamera(int(p["width"]), bool(p["depth"]))
+            if self.source.dropped_distortion > 0:
+                self.get_logger().warning(f"camera_node: the OAK's thin-prism/tilt distortion terms (up to "
+                                          f"{self.source.dropped_distortion:.3g}) have no place in CameraInfo")
         elif p["source"] != "sim":
             raise PegasusError(f"camera_node: source must be folder, oak or sim, got {p['source']!r}")
         self.params = p
@@ -178,19 +170,30 @@ class CameraNode(Node):
             except PegasusError:
                 return
         frame = self.source.read()
-        if frame is None:  # a folder played once: this node's job is over
-            finish(self)
-            return
-        image, depth = frame
+        if frame is None:
+            if self.source.finished:  # a folder played once: this node's job is over
+                finish(self)
+            return  # no new frame yet
+        image, depth, stamp = frame
         header = msgs.Header(frame_id=self.params["frame_id"])
-        header.stamp = self.get_clock().now().to_msg()
+        if stamp is None:
+            header.stamp = self.get_clock().now().to_msg()
+        else:
+            header.stamp.sec, header.stamp.nanosec = divmod(int(round(stamp * 1e9)), 1_000_000_000)
         h, w = image.shape[:2]
-        info = camera_info(self.camera_matrix(w, h), w, h, header)
+        info = camera_info(self.camera_matrix(w, h), w, h, header, self.source.distortion,
+                           self.source.distortion_model)
         if depth is not None:
             self.depth_pub.publish(numpy_to_image(depth, "32FC1", header))
         self.image_pub.publish(numpy_to_image(image, "rgb8", header))
         self.info_pub.publish(info)
         self.frames += 1
+
+
+    def destroy_node(self) -> None:
+        if isinstance(self.source, OakCamera):
+            self.source.close()
+        super().destroy_node()
 
 
 NODE_CLASS = CameraNode

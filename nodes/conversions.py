@@ -53,14 +53,16 @@ def image_to_numpy(msg) -> np.ndarray:
     return flat.reshape(shape).astype(dtype.newbyteorder("="))
 
 
-def camera_info(K: np.ndarray, width: int, height: int, header=None, distortion=None):
-    """A sensor_msgs/CameraInfo of a camera with intrinsics K [3, 3] (px) and ``distortion`` (plumb_bob
-    k1 k2 t1 t2 k3; None: none): ``p`` is [K | 0] (a monocular camera, rectified frame = camera frame, as
-    DOPE's ROS node reads it) and ``r`` the identity."""
+def camera_info(K: np.ndarray, width: int, height: int, header=None, distortion=None,
+                distortion_model: str = "plumb_bob"):
+    """A sensor_msgs/CameraInfo of a camera with intrinsics K [3, 3] (px) and ``distortion`` (the
+    coefficients of ``distortion_model``: plumb_bob k1 k2 t1 t2 k3, rational_polynomial k1 k2 t1 t2 k3 k4 k5
+    k6; None: none): ``p`` is [K | 0] (a monocular camera, rectified frame = camera frame, as DOPE's ROS node
+    reads it) and ``r`` the identity."""
     msg = msgs.CameraInfo()
     if header is not None:
         msg.header = header
-    msg.height, msg.width, msg.distortion_model = int(height), int(width), "plumb_bob"
+    msg.height, msg.width, msg.distortion_model = int(height), int(width), distortion_model
     msg.d = [float(v) for v in (distortion if distortion is not None else np.zeros(5))]
     msg.k = [float(v) for v in np.asarray(K, np.float64).ravel()]
     msg.r = [float(v) for v in np.eye(3).ravel()]
