@@ -37,14 +37,17 @@ class TargetObject:
 
 
 def load_checkpoint(path: str | Path) -> dict:
-    """A checkpoint written by training (tensors mapped to the CPU); a clear error for anything else."""
+    """A checkpoint written by training (tensors mapped to the CPU); a clear error for anything else. Only
+    tensors and plain containers are unpickled (``weights_only``): a file that would build other objects, and
+    so could run code, is refused."""
     path = Path(path)
     if not path.is_file():
         raise PegasusError(f"{path}: no such checkpoint")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # torch raises several kinds for a damaged or foreign file
-        raise PegasusError(f"{path}: not a readable checkpoint ({exc})") from exc
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several kinds for a damaged, foreign or crafted file
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise PegasusError(f"{path}: not a readable checkpoint ({reason})") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise PegasusError(f"{path}: not a pegasus DOPE checkpoint (format {CHECKPOINT_FORMAT})")
     return state
