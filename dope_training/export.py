@@ -28,6 +28,7 @@ from torch import nn
 from dope_training.checkpoint import load_checkpoint, model_from_checkpoint
 from dope_training.model import DopeNetwork, model_config
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.io.files import give_default_mode
 
 STRIDE = 8
 INPUT = "RGB float32 0..1, [B, 3, H, W], H and W multiples of 8"
@@ -80,6 +81,7 @@ def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17, metadata:
             graph.metadata_props.add(key=key, value=value)
         onnx.checker.check_model(graph)
         onnx.save(graph, tmp)
+        give_default_mode(tmp)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

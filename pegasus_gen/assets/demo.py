@@ -346,7 +346,7 @@ def build_demo_library(library: AssetLibrary, seed: int = 0, force: bool = False
     for splats, mesh, surface, manifest in tqdm(items, desc="demo assets", unit="asset"):
         manifest.geometry["seed"] = seed
         names.append(manifest.name)
-        path = library.root / manifest.name
+        path = library.asset_path(manifest.name)
         if not force and (path / "asset.json").is_file():
             try:
                 if library.get(manifest.name).manifest.geometry == manifest.geometry:

@@ -17,7 +17,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from pegasus_gen.assets.collision import MeshParams, splats_to_mesh
-from pegasus_gen.assets.library import Asset, AssetLibrary, AssetManifest, DropRegion, save_asset
+from pegasus_gen.assets.library import Asset, AssetLibrary, AssetManifest, DropRegion, check_new_asset, save_asset
 from pegasus_gen.assets.surface import mesh_surface, splat_surface
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.cloud import SplatCloud, is_rigid
@@ -101,9 +101,7 @@ def _finish(cloud: SplatCloud, mesh: trimesh.Trimesh | None, name: str, kind: st
         mesh = environment_mesh(cloud, on_plane, params) if mesh is None else mesh.copy().apply_transform(T)
         manifest = AssetManifest(name=name, kind=kind, drop_region=_drop_region(cloud.means[on_plane]),
                                  support_height=0.0, **fields)
-    elif kind == "object":
-        if obj_id is None:
-            raise PegasusError("an object import needs --obj-id (an integer >= 1)")
+    else:  # an object (check_new_asset has checked kind and obj_id)
         if mesh is None or not mesh.is_watertight:
             mesh, report = splats_to_mesh(cloud, params)
             fields["geometry"] = {k: v for k, v in report.items() if k != "volume"}
@@ -114,14 +112,12 @@ def _finish(cloud: SplatCloud, mesh: trimesh.Trimesh | None, name: str, kind: st
         mesh = mesh.copy().apply_translation(-centre)
         surface = splat_surface(cloud) if surface is None else surface.copy().apply_translation(-centre)
         manifest = AssetManifest(name=name, kind=kind, obj_id=obj_id, **fields)
-    else:
-        raise PegasusError(f"kind must be 'object' or 'environment', got {kind!r}")
-    return save_asset(library.root / name, manifest, cloud, mesh, surface, overwrite=overwrite)
+    return save_asset(library.asset_path(name), manifest, cloud, mesh, surface, overwrite=overwrite)
 
 
 def _check_placement(scale: float, transform) -> np.ndarray:
-    if not scale > 0:
-        raise PegasusError(f"--scale must be positive, got {scale}")
+    if not (np.isfinite(scale) and scale > 0):
+        raise PegasusError(f"--scale must be a positive finite number, got {scale}")
     T = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64).reshape(4, 4)
     if not is_rigid(T):
         raise PegasusError("--transform must be a rigid 4x4 transform (16 numbers, row-major)")
@@ -133,6 +129,7 @@ def import_splat(ply: str | os.PathLike, name: str, kind: str, library: AssetLib
                  params: MeshParams = MeshParams(), overwrite: bool = False, **fields) -> Asset:
     """A trained 3DGS PLY as an asset in ``library``: scaled by ``scale`` to metres, then moved by the
     optional rigid ``transform`` [4, 4] (e.g. to make z up) before the conventions above apply."""
+    check_new_asset(library, name, kind, obj_id, overwrite, **fields)
     T = _check_placement(scale, transform)
     return import_cloud(read_ply(ply).transformed(T, scale=scale), name, kind, library, obj_id, rng, params,
                         overwrite, **fields)
@@ -142,6 +139,7 @@ def import_cloud(cloud: SplatCloud, name: str, kind: str, library: AssetLibrary,
                  rng: np.random.Generator | None = None, params: MeshParams = MeshParams(), overwrite: bool = False,
                  **fields) -> Asset:
     """A splat cloud already in metres and z up (e.g. from ``pegasus scan``) as an asset in ``library``."""
+    check_new_asset(library, name, kind, obj_id, overwrite, **fields)
     return _finish(cloud, None, name, kind, obj_id, library, rng or np.random.default_rng(0), params, overwrite,
                    **fields)
 
@@ -152,6 +150,7 @@ def import_mesh(path: str | os.PathLike, name: str, kind: str, library: AssetLib
                 **fields) -> Asset:
     """A mesh file (OBJ + texture, PLY, ...) as an asset, scaled to metres and moved by the optional rigid
     ``transform``; its splats are sampled from its surface."""
+    check_new_asset(library, name, kind, obj_id, overwrite, **fields)
     T = _check_placement(scale, transform)
     rng = rng or np.random.default_rng(0)
     mesh = load_mesh(Path(path))

@@ -28,7 +28,9 @@ import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from pegasus_gen.assets.collision import convex_decomposition, is_concave
+from pegasus_gen.assets.names import ASSET_NAME_PATTERN, check_asset_name
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.io.files import give_default_mode
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.ply import read_ply, write_ply
 
@@ -68,7 +70,7 @@ class AssetManifest(BaseModel):
     """Everything about an asset except its arrays. Units: metres, kilograms, radians."""
 
     model_config = ConfigDict(extra="forbid")
-    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
+    name: str = Field(pattern=ASSET_NAME_PATTERN)
     kind: Literal["object", "environment"]
     obj_id: Optional[int] = Field(default=None, ge=1)
     units: Literal["m"] = "m"
@@ -218,6 +220,8 @@ def save_asset(path: str | os.PathLike, manifest: AssetManifest, splats: SplatCl
     path = Path(path)
     if path.exists() and not overwrite:
         raise PegasusError(f"{path}: already exists (pass overwrite to replace it)")
+    if path.exists() and not (path / MANIFEST).is_file():  # overwrite replaces an asset, never another folder
+        raise PegasusError(f"{path}: exists and is not an asset (no {MANIFEST}); not replacing it")
     if manifest.kind == "object":
         mass_properties(mesh, manifest.mass)  # a closed mesh is needed: check before writing anything
         if surface is None or len(surface.faces) == 0:
@@ -225,6 +229,7 @@ def save_asset(path: str | os.PathLike, manifest: AssetManifest, splats: SplatCl
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}."))
     try:
+        give_default_mode(tmp, directory=True)
         (tmp / MANIFEST).write_text(manifest.model_dump_json(indent=2) + "\n")
         write_ply(tmp / SPLATS, splats)
         mesh.export(tmp / COLLISION)
@@ -250,11 +255,38 @@ def default_library_path() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "pegasus" / "assets"
 
 
+def check_new_asset(library: "AssetLibrary", name: str, kind: str, obj_id: int | None = None,
+                    overwrite: bool = False, **fields) -> Path:
+    """The folder for a new asset, after the checks that need none of its data (so an import or a scan
+    refuses before its work): a valid name, manifest fields (``kind``, ``obj_id``, ``fields`` such as
+    ``mass``) as the manifest takes them, no asset of that name unless ``overwrite``, no other object with that
+    ``obj_id``."""
+    path = library.asset_path(name)
+    if kind == "object" and obj_id is None:
+        raise PegasusError("an object needs an obj_id (--obj-id, an integer >= 1)")
+    placeholder = DropRegion(x_min=0.0, x_max=1.0, y_min=0.0, y_max=1.0) if kind == "environment" else None
+    try:
+        AssetManifest(name=name, kind=kind, obj_id=obj_id, drop_region=placeholder, **fields)
+    except ValidationError as exc:
+        raise PegasusError(f"asset {name!r}: {_describe(exc)}") from None
+    if path.exists() and not overwrite:
+        raise PegasusError(f"{path}: already exists (pass --overwrite to replace it)")
+    if kind == "object":
+        other = next((m.name for m in library.manifests() if m.obj_id == obj_id and m.name != name), None)
+        if other is not None:
+            raise PegasusError(f"obj_id {obj_id} is taken by asset {other!r} in {library.root}; choose another")
+    return path
+
+
 class AssetLibrary:
     """The assets under one directory, by name or obj_id."""
 
     def __init__(self, root: str | os.PathLike | None = None):
         self.root = Path(root) if root is not None else default_library_path()
+
+    def asset_path(self, name: str) -> Path:
+        """The folder of the asset ``name`` in this library (the name checked: ``check_asset_name``)."""
+        return self.root / check_asset_name(name)
 
     def names(self) -> list[str]:
         """Names of the asset directories (those holding an asset.json), sorted."""

@@ -11,8 +11,28 @@ from typing import BinaryIO, Callable
 from pegasus_gen.errors import PegasusError
 
 
+def umask() -> int:
+    """The process's file-mode creation mask (from /proc where it shows, without changing it)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def give_default_mode(path: str | os.PathLike, directory: bool = False) -> None:
+    """Give ``path`` the mode a plain ``open``/``mkdir`` would have (0666/0777 less the umask): tempfile makes
+    its files 0600 and folders 0700, which renaming them into place would keep."""
+    os.chmod(path, (0o777 if directory else 0o666) & ~umask())
+
+
 def write_atomic(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> Path:
-    """Create ``path`` by calling ``write(f)`` on a temporary file beside it, then renaming it into place.
+    """Create ``path`` by calling ``write(f)`` on a temporary file beside it, then renaming it into place (with
+    the mode the umask gives a new file).
 
     On any error the temporary file is removed and an existing file at ``path`` is left untouched.
     """
@@ -22,6 +42,7 @@ def write_atomic(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> 
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)
+        give_default_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -7,6 +7,8 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from pegasus_gen.assets.names import ASSET_NAME_PATTERN
+
 TRAIN_SIZE = {"cpu-small": 160, "7k": 1600, "30k": 1600}  # default longest photo side for training, px, by preset
 
 
@@ -16,7 +18,7 @@ class ScanOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     kind: Literal["object", "environment"] = Field("object", description="an object on a support, or a place")
-    name: str = Field("scan", min_length=1, description="asset name")
+    name: str = Field("scan", pattern=ASSET_NAME_PATTERN, description="asset name (letters, digits, _ . -)")
     obj_id: Optional[int] = Field(None, ge=1, description="BOP object id (objects)")
     aruco_size: Optional[float] = Field(None, gt=0, description="printed ArUco marker edge length, metres")
     aruco_dict: str = Field("DICT_4X4_50", description="cv2.aruco dictionary of the markers")

@@ -25,7 +25,7 @@ import numpy as np
 import open3d as o3d
 
 from pegasus_gen.assets.importers import import_cloud, support_plane_alignment
-from pegasus_gen.assets.library import Asset, AssetLibrary
+from pegasus_gen.assets.library import Asset, AssetLibrary, check_new_asset
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.images import rgb_to_uint8, write_image
 from pegasus_gen.io.plots import line_chart
@@ -48,8 +48,7 @@ CROP_MIN_HEIGHT = 0.002  # m: trained splats below this height belong to the sup
 def check_inputs(options: ScanOptions, names: list[str], library: AssetLibrary) -> None:
     """Refuse what the options cannot check alone: an asset of that name already in ``library`` (without
     ``overwrite``), photos (``names``, and the second half's) without a mask in the mask folders."""
-    if (library.root / options.name).exists() and not options.overwrite:
-        raise PegasusError(f"{library.root / options.name}: already exists (pass --overwrite to replace it)")
+    check_new_asset(library, options.name, options.kind, options.obj_id, options.overwrite)
     for folder, photos in ((options.masks, names), (options.second_masks, None)):
         if folder is None:
             continue

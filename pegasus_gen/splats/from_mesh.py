@@ -18,8 +18,12 @@ from pegasus_gen.splats.surface import surface_splats
 DEFAULT_SPACING = 0.002  # metres between neighbouring splats
 
 
+MAX_SPLATS = 2_000_000  # a mesh import's splat budget (~1 GB while building); a finer spacing is refused
+
+
 def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
-    """One triangle mesh from an OBJ/PLY/STL/GLB file (scenes are merged), with its texture if any."""
+    """One triangle mesh from an OBJ/PLY/STL/GLB file (scenes are merged), with its texture if any; a mesh
+    with a non-finite vertex is refused."""
     try:
         loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
@@ -31,6 +35,9 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
         loaded = geoms[0] if len(geoms) == 1 else trimesh.util.concatenate(geoms)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise PegasusError(f"{path}: the file holds no triangle mesh")
+    bad = int((~np.isfinite(np.asarray(loaded.vertices))).any(axis=1).sum())
+    if bad:
+        raise PegasusError(f"{path}: {bad} vertex(es) with a NaN or infinite coordinate")
     return loaded
 
 
@@ -77,9 +84,12 @@ def mesh_to_splats(mesh: trimesh.Trimesh, rng: np.random.Generator, spacing: flo
 
     Samples are area-uniform; each Gaussian lies in its face's plane (thin along the face normal).
     """
-    if not spacing > 0:
-        raise ValueError(f"spacing must be positive, got {spacing}")
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise PegasusError(f"--spacing must be a positive number of metres, got {spacing}")
     count = max(1, int(round(mesh.area / spacing**2)))
+    if count > MAX_SPLATS:
+        raise PegasusError(f"--spacing {spacing} m would cover the mesh's {mesh.area:.4g} m2 with {count:,} splats "
+                           f"(at most {MAX_SPLATS:,}): use --spacing {np.sqrt(mesh.area / MAX_SPLATS):.2g} or more")
     points, faces, bary = _sample_surface(mesh, count, rng)
     normals = np.asarray(mesh.face_normals)[faces]
     colors = np.clip(surface_colors(mesh, faces, bary), 0.0, 1.0)

@@ -147,6 +147,11 @@ def read_ply(path: str | os.PathLike):
             first = int(np.flatnonzero(~np.isfinite(column))[0])
             raise SplatFileError(path, f"non-finite value (NaN or inf) in property {p!r} of vertex {first}")
 
+    norms = np.sqrt(sum(table[p].astype(np.float64) ** 2 for p in ("rot_0", "rot_1", "rot_2", "rot_3")))
+    if (norms < 1e-12).any():
+        raise SplatFileError(path, f"{int((norms < 1e-12).sum())} splat(s) with a zero rotation quaternion "
+                                   "(rot_0..rot_3 all 0): they have no orientation and would render as nothing")
+
     def cols(props):
         return np.stack([table[p].astype(np.float32) for p in props], axis=1) if props else \
             np.zeros((len(table), 0), np.float32)
