@@ -134,11 +134,10 @@ class UR5:
         """Move the TCP in a straight line to ``target`` ([4, 4] or [x, y, z, rx, ry, rz], base frame) and
         wait until it is there; checked against the envelope first."""
         c = self.config
-        speed, acceleration = speed or c.speed, acceleration or c.acceleration
-        T_target = np.asarray(target, float)
-        T_target = T_target if T_target.shape == (4, 4) else pose_to_matrix(T_target)
-        c.envelope.check_linear(self.tcp_pose(), T_target, speed, acceleration)
-        pose = matrix_to_pose(T_target).tolist()
+        speed = c.speed if speed is None else speed
+        acceleration = c.acceleration if acceleration is None else acceleration
+        T_target = c.envelope.check_linear(self.tcp_pose(), target, speed, acceleration)
+        pose = matrix_to_pose(T_target).tolist()  # the pose checked (check_linear's is built from it)
         if self._dry(f"moveL {np.round(pose, 4).tolist()} v={speed} a={acceleration}"):
             return
         self._run_async("moveL", lambda: self.control.moveL(pose, speed, acceleration, True),
@@ -150,7 +149,8 @@ class UR5:
     def move_j(self, q, speed: float | None = None, acceleration: float | None = None) -> None:
         """Move to joints ``q`` [6] (rad) and wait; the whole joint path is checked against the envelope."""
         c = self.config
-        speed, acceleration = speed or c.joint_speed, acceleration or c.joint_acceleration
+        speed = c.joint_speed if speed is None else speed
+        acceleration = c.joint_acceleration if acceleration is None else acceleration
         q = np.asarray(q, float)
         c.envelope.check_joint(self.joint_positions(), q, speed, acceleration, tcp=self._tcp_offset())
         if self._dry(f"moveJ {np.round(q, 4).tolist()} v={speed} a={acceleration}"):
@@ -160,7 +160,13 @@ class UR5:
 
     def _tcp_offset(self) -> np.ndarray:
         """T_flange_tcp [4, 4]: the controller's TCP offset (identity in a dry run, which has no control link)."""
-        return np.eye(4) if self.control is None else pose_to_matrix(self.control.getTCPOffset())
+        if self.control is None:
+            return np.eye(4)
+        try:
+            return pose_to_matrix(self.control.getTCPOffset())
+        except RuntimeError as exc:  # ur-rtde: e.g. after a protective stop, when the control script has ended
+            raise RobotError(f"the controller did not answer for its TCP offset ({exc}); is the robot in a "
+                             "protective stop or its program stopped?") from None
 
     def stop(self) -> None:
         """Decelerate any motion to a standstill."""

@@ -1,11 +1,14 @@
 """The safety envelope every robot command is checked against before anything is sent.
 
-Checks (base frame, metres): the TCP inside a workspace box, at least ``min_height`` above the table top
-``table_z``, the tool's z axis within ``max_tilt_deg`` of straight down, speeds and accelerations within
-limits. A linear move is safe when both ends are: the box and the height limit are convex, and the
-directions within a cone narrower than a hemisphere are too, so the straight path and its SLERPed
-orientation stay inside. A joint move's Cartesian path is curved, so it is checked at ``samples`` points
-along the joint interpolation through the forward kinematics.
+Checks (base frame, metres): every number finite, a target matrix a rigid transform (the pose sent is the
+one checked), the TCP inside a workspace box, at least ``min_height`` above the table top ``table_z``, the
+tool's z axis within ``max_tilt_deg`` of straight down, speeds and accelerations within limits, joint targets
+within the UR5's joint limits. A linear move's straight path stays in the box and above the table when its
+ends do (both are convex), but its SLERPed orientation can tilt beyond the cone in the middle although both
+ends lie inside (53.2 and 51.6 degree ends reach 75.8 degrees), so the path is checked at ``samples`` points
+at least, one per half degree of rotation, with the controller's interpolation (straight line, SLERP). A
+joint move's Cartesian path is curved, so it is checked at ``samples`` points along the joint interpolation
+through the forward kinematics.
 """
 
 from __future__ import annotations
@@ -13,9 +16,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from pegasus_gen.errors import PegasusError
-from robot_bridge.kinematics import fk, pose_to_matrix
+from robot_bridge.kinematics import fk, matrix_to_pose, pose_to_matrix
+
+UR5_JOINT_LIMIT = 2 * np.pi  # rad: every UR5 joint turns within [-2 pi, 2 pi]
 
 
 class UnsafeCommand(PegasusError):
@@ -34,7 +40,8 @@ class SafetyEnvelope:
     max_acceleration: float = 1.5  # m/s^2
     max_joint_speed: float = 1.6  # rad/s (moveJ)
     max_joint_acceleration: float = 3.0  # rad/s^2
-    samples: int = 50  # points checked along a joint move
+    samples: int = 50  # points checked along a move at least
+    joint_limit: float = UR5_JOINT_LIMIT  # rad, each joint's |q|
 
     def __post_init__(self):
         if not 0 < self.max_tilt_deg < 90:
@@ -59,13 +66,32 @@ class SafetyEnvelope:
             found.append(f"the tool is tilted {tilt:.1f} deg from straight down (limit {self.max_tilt_deg})")
         return found
 
-    def check_pose(self, pose, what: str = "target") -> None:
-        """Raise UnsafeCommand naming every problem of ``pose`` ([x, y, z, rx, ry, rz] or [4, 4])."""
+    def sent_pose(self, pose, what: str = "target") -> np.ndarray:
+        """T [4, 4] of the pose a command sends for ``pose`` ([x, y, z, rx, ry, rz], or [4, 4]: sent as its
+        rotation vector): UnsafeCommand when a number is not finite or a matrix is not a rigid transform
+        (a scaled or sheared rotation would be sent as some nearby rotation that was never checked)."""
         T = np.asarray(pose, dtype=np.float64)
-        T = T if T.shape == (4, 4) else pose_to_matrix(T)
+        if T.shape not in ((6,), (4, 4)):
+            raise UnsafeCommand(f"{what} refused: a pose is [x, y, z, rx, ry, rz] or a 4x4 matrix, got shape "
+                                f"{T.shape}")
+        if not np.isfinite(T).all():
+            raise UnsafeCommand(f"{what} refused: it holds a NaN or infinite number")
+        if T.shape == (6,):
+            return pose_to_matrix(T)
+        R = T[:3, :3]
+        if (np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or abs(np.linalg.det(R) - 1) > 1e-6
+                or not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0])):
+            raise UnsafeCommand(f"{what} refused: not a rigid transform (its rotation is scaled, sheared or "
+                                "mirrored)")
+        return pose_to_matrix(matrix_to_pose(T))
+
+    def check_pose(self, pose, what: str = "target") -> np.ndarray:
+        """The pose sent for ``pose`` (``sent_pose``) [4, 4]; UnsafeCommand naming every problem it has."""
+        T = self.sent_pose(pose, what)
         found = self.problems(T)
         if found:
             raise UnsafeCommand(f"{what} refused: " + "; ".join(found))
+        return T
 
     def check_motion(self, speed: float, acceleration: float, joint: bool = False) -> None:
         """Raise UnsafeCommand for a non-positive or too high speed or acceleration (of the TCP, or of the
@@ -73,22 +99,39 @@ class SafetyEnvelope:
         unit = "rad" if joint else "m"
         limits = (self.max_joint_speed, self.max_joint_acceleration) if joint else (self.max_speed,
                                                                                     self.max_acceleration)
-        if not 0 < speed <= limits[0]:
+        if not (np.isfinite(speed) and 0 < speed <= limits[0]):
             raise UnsafeCommand(f"speed {speed} {unit}/s refused: must be within (0, {limits[0]}]")
-        if not 0 < acceleration <= limits[1]:
+        if not (np.isfinite(acceleration) and 0 < acceleration <= limits[1]):
             raise UnsafeCommand(f"acceleration {acceleration} {unit}/s^2 refused: must be within (0, {limits[1]}]")
 
-    def check_linear(self, T_start: np.ndarray, target, speed: float, acceleration: float) -> None:
-        """A moveL from the TCP pose ``T_start`` [4, 4] to ``target``."""
+    def check_linear(self, T_start: np.ndarray, target, speed: float, acceleration: float) -> np.ndarray:
+        """A moveL from the TCP pose ``T_start`` [4, 4] to ``target``, the whole path: returns the target pose
+        sent [4, 4]."""
         self.check_motion(speed, acceleration)
-        self.check_pose(T_start, "moveL start")
-        self.check_pose(target, "moveL target")
+        T_start = self.check_pose(T_start, "moveL start")
+        T_target = self.check_pose(target, "moveL target")
+        rotations = Slerp([0, 1], Rotation.from_matrix([T_start[:3, :3], T_target[:3, :3]]))
+        angle = np.degrees((rotations(1.0) * rotations(0.0).inv()).magnitude())
+        for s in np.linspace(0.0, 1.0, max(self.samples, int(np.ceil(angle / 0.5)) + 1)):
+            T = np.eye(4)
+            T[:3, :3] = rotations(s).as_matrix()
+            T[:3, 3] = T_start[:3, 3] + s * (T_target[:3, 3] - T_start[:3, 3])
+            found = self.problems(T)
+            if found:
+                raise UnsafeCommand(f"moveL refused at {s:.0%} of the way: " + "; ".join(found))
+        return T_target
 
     def check_joint(self, q_start, q_target, speed: float, acceleration: float,
                     tcp: np.ndarray | None = None) -> None:
         """A moveJ from joints ``q_start`` [6] to ``q_target`` [6] (rad), TCP = flange @ ``tcp``."""
         self.check_motion(speed, acceleration, joint=True)
         q_start, q_target = np.asarray(q_start, float), np.asarray(q_target, float)
+        if q_target.shape != (6,) or not np.isfinite(q_target).all():
+            raise UnsafeCommand(f"moveJ refused: a joint target is 6 finite angles (rad), got {q_target.tolist()}")
+        beyond = [f"joint {i} = {v:.3f} rad" for i, v in enumerate(q_target) if abs(v) > self.joint_limit]
+        if beyond:
+            raise UnsafeCommand(f"moveJ refused: {', '.join(beyond)} beyond the joint limit "
+                                f"+-{self.joint_limit:.3f} rad")
         for s in np.linspace(0.0, 1.0, self.samples):
             found = self.problems(fk(q_start + s * (q_target - q_start), tcp))
             if found:

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from pegasus_gen.errors import PegasusError
 from robot_bridge.kinematics import fk, matrix_to_pose
@@ -44,3 +45,38 @@ def test_joint_move_with_safe_ends_but_an_unsafe_middle_is_refused():
         env.check_joint(start, end, 0.5, 1.0)
     end[0] = -np.pi  # the other way round passes y = +0.39: inside
     env.check_joint(start, end, 0.5, 1.0)
+
+
+def test_the_pose_checked_is_the_pose_sent_and_the_whole_linear_path():
+    """A scaled rotation (read raw, 50 deg; sent as its nearest rotation, 70 deg), a NaN, a SLERP that
+    leaves the tilt cone between two ends inside it, a zero speed, a joint target ten turns away."""
+    env = SafetyEnvelope()
+    home = fk(TOOL_DOWN)
+    scaled = home.copy()
+    a = np.radians(70)
+    scaled[:3, :3] = home[:3, :3] @ np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    scaled[:3, :3] *= np.cos(np.radians(50)) / np.cos(a)  # -T[2, 2] now reads as a 50 degree tilt
+    assert np.degrees(np.arccos(-scaled[2, 2])) < env.max_tilt_deg
+    with pytest.raises(UnsafeCommand, match="not a rigid transform"):
+        env.check_pose(scaled)
+    for bad in ([0.1, -0.3, 0.3, np.nan, 0.0, 0.0], [0.1, -0.3, np.inf, 3.14, 0.0, 0.0]):
+        with pytest.raises(UnsafeCommand, match="NaN or infinite"):
+            env.check_pose(bad)
+
+    # ends tilted 48.9 and 44.7 degrees; the SLERP between them reaches 68.0 degrees
+    ends = [home.copy(), home.copy()]
+    for T, rotvec in zip(ends, ([1.0, -2.6, 1.26], [2.46, 1.48, 1.18])):
+        T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+        env.check_pose(T)
+    with pytest.raises(UnsafeCommand, match=r"moveL refused at \d+% of the way: the tool is tilted 6"):
+        env.check_linear(ends[0], ends[1], 0.1, 1.0)
+    env.check_linear(ends[0], ends[0], 0.1, 1.0)  # staying put is fine
+
+    with pytest.raises(UnsafeCommand, match="speed 0"):
+        env.check_linear(home, home, 0.0, 1.0)
+    far = TOOL_DOWN + [20 * np.pi, 0, 0, 0, 0, 0]  # the same TCP pose, ten base turns away
+    np.testing.assert_allclose(fk(far), home, atol=1e-9)
+    with pytest.raises(UnsafeCommand, match="joint 0 = 62.832 rad beyond the joint limit"):
+        env.check_joint(TOOL_DOWN, far, 0.5, 1.0)
+    with pytest.raises(UnsafeCommand, match="6 finite angles"):
+        env.check_joint(TOOL_DOWN, TOOL_DOWN + [0, np.nan, 0, 0, 0, 0], 0.5, 1.0)

@@ -119,7 +119,19 @@ def test_unsafe_commands_are_refused_and_nothing_is_sent(controller):
         tilted[:3, :3] = Rotation.from_euler("x", 80, degrees=True).as_matrix() @ tilted[:3, :3]
         with pytest.raises(UnsafeCommand, match="tilted"):
             robot.move_l(tilted)
-    assert not any("moveL" in line for line in controller.log_lines())
+        scaled = robot.tcp_pose()  # a 70 degree tilt scaled to read as 50 degrees
+        scaled[:3, :3] = Rotation.from_euler("x", 70, degrees=True).as_matrix() @ scaled[:3, :3]
+        scaled[:3, :3] *= np.cos(np.radians(50)) / np.cos(np.radians(70))
+        with pytest.raises(UnsafeCommand, match="not a rigid transform"):
+            robot.move_l(scaled)
+        with pytest.raises(UnsafeCommand, match="NaN"):
+            robot.move_l([-0.4, -0.1, 0.4, np.nan, 0.0, 0.0])
+        with pytest.raises(UnsafeCommand, match="speed 0"):
+            robot.move_l(robot.tcp_pose(), speed=0.0)
+        with pytest.raises(UnsafeCommand, match="joint limit"):
+            robot.move_j(robot.joint_positions() + [20 * np.pi, 0, 0, 0, 0, 0])
+    log = "\n".join(controller.log_lines())
+    assert "moveL" not in log and "moveJ" not in log
 
 
 def test_dry_run_sends_nothing(controller):
