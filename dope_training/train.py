@@ -42,6 +42,7 @@ from pegasus_gen.dataset.bop import model_boxes, object_names
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io import images
 from pegasus_gen.io.files import read_json, write_atomic
+from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.io.plots import line_chart
 
 # Keys a resumed run may change; any other difference means another experiment and is refused.
@@ -195,7 +196,7 @@ def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
     out = Path(cfg.out)
     stored = out / "train_config.yaml"
     if not resume:
-        if out.exists() and any(out.iterdir()):
+        if out.exists() and any(p.name != LOCK_FILE for p in out.iterdir()):
             raise PegasusError(f"{out} is not empty: pass --resume to continue its training or choose another --out")
         return None
     if not (out / "last.pt").is_file():
@@ -211,8 +212,14 @@ def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
 
 
 def train(cfg: TrainConfig, resume: bool = False) -> Path:
-    """Train as ``cfg`` says (see the module docstring); returns the output folder."""
+    """Train as ``cfg`` says (see the module docstring); returns the output folder, which is this run's alone
+    while it trains (``FolderLock``, taken by rank 0)."""
     rank, world, local_rank = _distributed()
+    with FolderLock(cfg.out, "pegasus train") if rank == 0 else contextlib.nullcontext():
+        return _train(cfg, resume, rank, world, local_rank)
+
+
+def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: int) -> Path:
     device = _device(cfg.device, local_rank)
     if world > 1 and not torch.distributed.is_initialized():
         torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")

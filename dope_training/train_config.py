@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from typing import Literal, Optional
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.io.files import parse_yaml
 
 
 class TrainConfig(BaseModel):
@@ -70,8 +70,5 @@ def parse_options(text: str | list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep:
             raise PegasusError(f"training option {item!r} is not key=value")
-        try:
-            options[key] = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise PegasusError(f"training option {item!r}: the value is not valid YAML") from None
+        options[key] = parse_yaml(value, f"training option {item!r}")
     return options

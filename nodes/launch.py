@@ -205,7 +205,10 @@ def _coerce(text: str, value_type):
     if is_list:
         import yaml
 
-        value = yaml.safe_load(text) if text else text
+        try:
+            value = yaml.safe_load(text) if text else text
+        except yaml.YAMLError:
+            raise ValueError(f"{text!r} is not YAML") from None
         if not isinstance(value, list) or not all(isinstance(v, item) for v in value):
             raise ValueError(f"cannot convert {text!r} to a list of {item.__name__}")
         return tuple(value)

@@ -5,10 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal, Optional, Union
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.io.files import parse_yaml
 
 
 class _Strict(BaseModel):
@@ -108,18 +108,17 @@ def load_config(path: str | Path | None = None, overrides: list[str] = ()) -> Ge
     tree: dict = {}
     if path is not None:
         try:
-            tree = yaml.safe_load(Path(path).read_text()) or {}
+            text = Path(path).read_text()
         except OSError as exc:
             raise PegasusError(f"{path}: cannot read config ({exc.strerror or exc})") from None
-        except yaml.YAMLError as exc:
-            raise PegasusError(f"{path}: not valid YAML ({exc})") from None
+        tree = parse_yaml(text, str(path)) or {}
         if not isinstance(tree, dict):
             raise PegasusError(f"{path}: the config must be a mapping of keys to values")
     for item in overrides:
         if "=" not in item:
             raise PegasusError(f"override {item!r}: expected key=value (e.g. camera.width=320)")
         key, value = item.split("=", 1)
-        _set(tree, key.strip(), yaml.safe_load(value))
+        _set(tree, key.strip(), parse_yaml(value, f"override {item!r}"))
     try:
         return GenerateConfig.model_validate(tree)
     except ValidationError as exc:

@@ -6,25 +6,29 @@ Layout (BOP train_pbr style)::
     OUTPUT/SPLIT/SSSSSS/{rgb,depth,mask,mask_visib}/...  scene_camera.json scene_gt.json scene_gt_info.json
 
     OUTPUT/SPLIT/SSSSSS/scene_gt_coco.json  (and rgb/IIIIII.json, DOPE/NDDS, with ``dope_json``)
-    OUTPUT/pegasus_config.yaml  (the config the dataset was made with)
+    OUTPUT/pegasus_config.yaml  (the config the dataset was made with, and its assets' SHA-256)
+    OUTPUT/.lock  (held by the run writing the dataset: a second writer is refused)
     OUTPUT/test_targets_bop19.json  (split test only)
 
 SPLIT is ``train_pbr`` (default), ``val`` or ``test``.
 
 Every scene is built in a hidden temporary folder and renamed into place when complete, so a killed
 run never leaves a half scene; ``resume`` skips the scenes already there after checking that the
-stored config matches. Each scene draws from its own random generator seeded by (seed, scene id): the
-same seed gives the same annotations whatever was resumed and however many workers ran. Scenes are
-spread over ``workers`` processes; inside a process, image encoding and writing run on threads while
-the next frame renders.
+stored config and the assets' files match. Each scene draws from its own random generator seeded by
+(seed, scene id): the same seed gives the same annotations whatever was resumed and however many
+workers ran. Scenes are spread over ``workers`` processes, which die with the run (even a kill -9 of
+it); inside a process, image encoding and writing run on threads while the next frame renders.
 """
 
 from __future__ import annotations
 
+import ctypes
+import hashlib
 import json
 import multiprocessing
 import os
 import shutil
+import signal
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,8 +47,9 @@ from pegasus_gen.dataset.models import eval_model, models_info_entry, write_mode
 from pegasus_gen.dataset.physics import DropResult, drop_objects
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
-from pegasus_gen.io.files import write_atomic
+from pegasus_gen.io.files import parse_yaml, write_atomic
 from pegasus_gen.io.images import rgb_to_uint8, write_image
+from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import render
 
@@ -290,10 +295,23 @@ def build_scene(split: Path, scene_id: int, cfg: GenerateConfig, assets: Assets,
         raise
 
 
-def _stored_config(cfg: GenerateConfig) -> dict:
+def asset_fingerprints(assets: Assets) -> dict[str, str]:
+    """{asset name: SHA-256 of its files} of every asset a dataset is made from (a resume refuses when one
+    changed: its scenes would not match the ones already written)."""
+    out = {}
+    for asset in [*assets.environments, *assets.per_spec]:
+        digest = hashlib.sha256()
+        for path in sorted(p for p in asset.path.iterdir() if p.is_file()):
+            digest.update(path.name.encode() + b"\0" + path.read_bytes())
+        out[asset.name] = digest.hexdigest()
+    return out
+
+
+def _stored_config(cfg: GenerateConfig, assets: Assets) -> dict:
     data = cfg.model_dump(mode="json")
     for key in RESUMABLE_KEYS:
         data.pop(key, None)
+    data["asset_sha256"] = asset_fingerprints(assets)
     return data
 
 
@@ -303,35 +321,51 @@ def _differences(a, b, prefix="") -> list[str]:
     return [prefix.rstrip(".")] if a != b else []
 
 
-def prepare_output(out: Path, cfg: GenerateConfig, resume: bool) -> None:
-    """Refuse to mix datasets: a non-empty ``out`` needs ``resume`` and the config it was made with
-    (keys in RESUMABLE_KEYS excepted). Records the config in a new dataset."""
+def prepare_output(out: Path, cfg: GenerateConfig, assets: Assets, resume: bool) -> None:
+    """Refuse to mix datasets: a non-empty ``out`` needs ``resume``, the config it was made with (keys in
+    RESUMABLE_KEYS excepted) and the same asset files. Records the config and the assets' fingerprints in a
+    new dataset."""
     record = out / CONFIG_FILE
-    if out.exists() and any(out.iterdir()):
+    if any(p.name != LOCK_FILE for p in out.iterdir()):
         if not resume:
             raise PegasusError(f"{out} is not empty; pass --resume to continue the dataset there, "
                                "or choose another output")
         if not record.is_file():
             raise PegasusError(f"{out}: no {CONFIG_FILE}, so this is not a dataset made by pegasus generate; "
                                "choose another output")
-        stored = yaml.safe_load(record.read_text())
-        changed = _differences(stored, _stored_config(cfg))
+        stored = parse_yaml(record.read_text(errors="replace"), f"{record} (so this dataset cannot be resumed)")
+        if not isinstance(stored, dict):
+            raise PegasusError(f"{record}: not a generate config (a YAML mapping); this dataset cannot be resumed")
+        changed = _differences(stored, _stored_config(cfg, assets))
         if changed:
-            raise PegasusError(f"{out} was made with a different config ({', '.join(changed)} differ); "
-                               "resume with the same config or choose another output")
+            raise PegasusError(f"{out} was made with a different config or assets ({', '.join(changed)} differ); "
+                               "resume with the same ones or choose another output")
         return
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(record, lambda f: f.write(yaml.safe_dump(_stored_config(cfg), sort_keys=True).encode()))
+    write_atomic(record, lambda f: f.write(yaml.safe_dump(_stored_config(cfg, assets), sort_keys=True).encode()))
 
 
 _worker_assets: Assets | None = None
 
 
-def _init_worker(cfg: GenerateConfig) -> None:
-    """Worker process start: share the CPU cores between the workers and load the assets once."""
+def die_with_parent(parent_pid: int) -> None:
+    """In a child process: be killed (SIGKILL) when the parent dies, even by kill -9 (Linux
+    ``PR_SET_PDEATHSIG``; elsewhere nothing); exit at once if it is already gone."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def _init_worker(cfg: GenerateConfig, parent_pid: int) -> None:
+    """Worker process start: die with the parent, share the CPU cores between the workers and load the
+    assets once."""
     global _worker_assets
     import numba
 
+    die_with_parent(parent_pid)
     numba.set_num_threads(max(1, (os.cpu_count() or 1) // cfg.workers))
     _worker_assets = load_assets(cfg)
 
@@ -342,11 +376,15 @@ def _worker_scene(split: Path, scene_id: int, cfg: GenerateConfig, frames_done) 
 
 def _build_in_processes(split: Path, todo: list[int], cfg: GenerateConfig, bar: tqdm) -> None:
     """``todo`` scenes spread over ``cfg.workers`` processes; ``bar`` advances per written frame."""
+    from multiprocessing.managers import SyncManager
+
     context = multiprocessing.get_context("spawn")  # forked numba/OpenMP thread pools are not safe
-    with context.Manager() as manager:
+    manager = SyncManager(ctx=context)
+    manager.start(die_with_parent, (os.getpid(),))
+    with manager:
         frames_done = manager.Queue()
         with ProcessPoolExecutor(cfg.workers, mp_context=context, initializer=_init_worker,
-                                 initargs=(cfg,)) as pool:
+                                 initargs=(cfg, os.getpid())) as pool:
             running = {pool.submit(_worker_scene, split, s, cfg, frames_done) for s in todo}
             try:
                 while running:
@@ -365,7 +403,12 @@ def generate(cfg: GenerateConfig, resume: bool = False) -> Path:
     already in a matching dataset are kept and only the missing ones are made."""
     assets = load_assets(cfg)  # all checks before the output folder is touched
     out = Path(cfg.output)
-    prepare_output(out, cfg, resume)
+    with FolderLock(out, "pegasus generate"):
+        prepare_output(out, cfg, assets, resume)
+        return _generate(out, cfg, assets)
+
+
+def _generate(out: Path, cfg: GenerateConfig, assets: Assets) -> Path:
     split = out / cfg.split
     split.mkdir(exist_ok=True)
     write_models(out, assets, cfg)

@@ -50,6 +50,21 @@ def write_atomic(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> 
     return path
 
 
+def parse_yaml(text: str, what: str):
+    """``text`` parsed as YAML (safe: plain data only); a PegasusError naming ``what`` and the first line of the
+    problem when it is not YAML (e.g. an unclosed ``[``)."""
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc).strip().splitlines()[0]
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at column {mark.column + 1}" if mark is not None and mark.line == 0 else \
+            (f" at line {mark.line + 1}" if mark is not None else "")
+        raise PegasusError(f"{what}: not valid YAML ({problem}{where})") from None
+
+
 def read_json(path: str | os.PathLike):
     """The parsed JSON file at ``path``; a missing or malformed file is a PegasusError naming it."""
     path = Path(path)
