@@ -15,7 +15,7 @@ import rtde_receive
 from scipy.spatial.transform import Rotation
 
 from robot_bridge.bridge import UR5, BridgeConfig, RobotConnectionError, RobotError
-from robot_bridge.kinematics import fk, pose_to_matrix
+from robot_bridge.kinematics import fk, matrix_to_pose, pose_to_matrix
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
 from robot_bridge.sim.process import SimControllerProcess
 from robot_bridge.sim.world import HOME_Q
@@ -175,3 +175,50 @@ def test_sim_robot_command_refuses_an_address_in_use(controller):
     result = subprocess.run([sys.executable, "-m", "pegasus_gen.cli", "sim-robot", "--host", controller.host],
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2 and "cannot listen on" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_the_controller_never_answers_done_to_what_it_did_not_do(controller):
+    """Inverse kinematics answers from the UR5's kinematics (reproduced through FK); an unreachable pose, a
+    NaN move and an unsupported mode (speedJ) end the program, so the client sees the failure; the cell
+    survives and serves the next client; a second control client is refused, as a UR refuses registers in
+    use, and the first keeps working."""
+    host = controller.host
+    receive = rtde_receive.RTDEReceiveInterface(host)
+    control = rtde_control.RTDEControlInterface(host)
+    try:
+        pose = receive.getActualTCPPose()
+        target = pose_to_matrix(pose)
+        target[:3, 3] += [0.05, -0.03, 0.04]
+        target[:3, :3] = Rotation.from_euler("y", 20, degrees=True).as_matrix() @ target[:3, :3]
+        tcp = pose_to_matrix(control.getTCPOffset())
+        for q in (control.getInverseKinematics(list(matrix_to_pose(target))),
+                  control.getInverseKinematics(list(matrix_to_pose(target)), list(HOME_Q))):
+            reached = fk(np.array(q), tcp)
+            assert np.abs(reached[:3, 3] - target[:3, 3]).max() < 1e-6 and angle_deg(reached, target) < 1e-6
+        with pytest.raises(RuntimeError, match="already in use"):
+            rtde_control.RTDEControlInterface(host)
+        assert control.moveL(list(matrix_to_pose(target)), 0.2, 1.0)  # the first client still drives the arm
+        np.testing.assert_allclose(receive.getActualTCPPose()[:3], target[:3, 3], atol=1e-3)
+
+        def speed_j(c):  # a realtime command: accepted at once, it fails when the program meets it
+            c.speedJ([0.2, 0, 0, 0, 0, 0], 0.5, 0.1)
+            time.sleep(0.3)
+            return None
+
+        bad = (lambda c: c.getInverseKinematics([3.0, 0.0, 0.3, 0.0, 3.14, 0.0]),  # out of reach: []
+               lambda c: c.moveL([np.nan, *pose[1:]], 0.1, 0.5), speed_j)
+        for call in bad:
+            q_before = receive.getActualQ()
+            assert not call(control) and not control.isProgramRunning()
+            np.testing.assert_allclose(receive.getActualQ(), q_before, atol=1e-9)  # nothing moved
+            control.disconnect()
+            control = rtde_control.RTDEControlInterface(host)  # the cell serves the next client
+            assert control.isProgramRunning() and not receive.isProtectiveStopped()
+        assert control.moveL(pose, 0.2, 1.0)
+        np.testing.assert_allclose(receive.getActualTCPPose()[:3], pose[:3], atol=1e-3)
+    finally:
+        control.disconnect()
+        receive.disconnect()
+    log = "\n".join(controller.log_lines())
+    assert "refused: getInverseKinematics" in log and "refused: moveL [nan" in log
+    assert "refused: speedJ is not supported" in log and "input_int_register_0 (IN_USE)" in log

@@ -55,6 +55,7 @@ class SimController:
         self.lock = threading.RLock()
         self.stopping = threading.Event()  # set by stop(): every server loop ends
         self.program: ControlProgram | None = None  # the running control script, ticked with the cell
+        self.input_owners: dict[str, object] = {}  # RTDE input field -> the connection that set it up
         self._threads: list[threading.Thread] = []
         self._sockets: list[socket.socket] = []
         self._connections: set[socket.socket] = set()
@@ -139,10 +140,17 @@ class SimController:
         next_tick = time.monotonic()
         while not self.stopping.is_set():
             with self.lock:
-                if self.program is not None:
-                    self.program.tick()
+                try:  # nothing a client sends may end the cell: a fault ends the program, as on a UR
+                    if self.program is not None:
+                        self.program.tick()
+                except Exception as exc:  # noqa: BLE001 - any fault of the emulated script
+                    self.record(f"program fault: {type(exc).__name__}: {exc}")
+                    self.end_program("runtime exception")
                 if not self.state.protective_stop:
-                    self.sim.advance(dt * self.time_scale)
+                    try:
+                        self.sim.advance(dt * self.time_scale)
+                    except Exception as exc:  # noqa: BLE001 - the arm's state went bad: stop it
+                        self.protective_stop(f"motion fault: {type(exc).__name__}: {exc}")
                     if self.sim.collision:
                         self.protective_stop(self.sim.collision)
             next_tick += dt

@@ -138,13 +138,16 @@ class RtdeServer:
                     send(rp.SETUP_OUTPUTS, bytes([rid]) + ",".join(types).encode())
                 elif kind == rp.SETUP_INPUTS:
                     names = [n for n in payload.decode().split(",") if n]
-                    types = [rp.input_type(n) or "NOT_FOUND" for n in names]
-                    rid = len(inputs) + 1 if "NOT_FOUND" not in types else 0
-                    if rid:
-                        inputs[rid] = (names, types)
-                    else:
-                        unknown = [n for n, t in zip(names, types) if t == "NOT_FOUND"]
-                        c.record(f"rtde input setup refused: unknown {unknown}")
+                    with c.lock:  # a field another client has set up is IN_USE, as a UR controller answers
+                        types = [rp.input_type(n) or "NOT_FOUND" if c.input_owners.get(n, conn) is conn
+                                 else "IN_USE" for n in names]
+                        rid = len(inputs) + 1 if not {"NOT_FOUND", "IN_USE"} & set(types) else 0
+                        if rid:
+                            inputs[rid] = (names, types)
+                            c.input_owners.update({n: conn for n in names})
+                    if not rid:
+                        refused = [f"{n} ({t})" for n, t in zip(names, types) if t in ("NOT_FOUND", "IN_USE")]
+                        c.record(f"rtde input setup refused: {', '.join(refused)}")
                     send(rp.SETUP_INPUTS, bytes([rid]) + ",".join(types).encode())
                 elif kind == rp.START:
                     send(rp.START, b"\x01")
@@ -163,3 +166,6 @@ class RtdeServer:
                     pass
         finally:
             streaming.clear()
+            with c.lock:  # this client's input fields are free again
+                for name in [n for n, owner in c.input_owners.items() if owner is conn]:
+                    del c.input_owners[name]

@@ -4,8 +4,10 @@ Text sent to a script port is a program. ur-rtde's control script (``def rtde_co
 line by line: ``ControlProgram`` emulates what it does over the RTDE registers (signal ready / done in
 output_int_register_0, async progress in output_int_register_2, commands in input_int_register_0 with arguments
 in input_double_register_0.., register offset 0 or 24 as the script's injection says; async progress as ur-rtde
-1.6 encodes it) for the commands of ``Command``. Other commands (speed_stop 15, servo_stop 16, ...) are logged and
-answered done, so the client does not hang. A bare ``stopl``/``stopj``/``halt`` line stops the arm.
+1.6 encodes it) for the commands of ``Command``. It never answers "done" to a command it did not carry out: a
+command it does not simulate (speed, servo and force modes among them), a move with a non-finite or out-of-range
+argument and an inverse kinematics without a solution end the program with a logged fault, as a runtime error
+ends a UR program, so the client's call fails. A bare ``stopl``/``stopj``/``halt`` line stops the arm.
 """
 
 from __future__ import annotations
@@ -20,8 +22,10 @@ from robot_bridge.kinematics import fk, matrix_to_pose, nearest_ik, pose_to_matr
 from robot_bridge.sim.world import MotionError
 
 READY, DONE = 1, 2  # what the script signals in output_int_register_0
-# the commands ur-rtde 1.6's script serves in its realtime thread ("simply process and signal ready"): not simulated
-REALTIME_COMMANDS = {24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71}
+# ur-rtde 1.6.5's names of commands the emulator refuses (others are refused by number)
+UNSUPPORTED = {2: "moveJ_IK", 4: "moveL_FK", 5: "moveC", 6: "forceMode", 7: "forceModeStop", 9: "speedJ",
+               10: "speedL", 11: "servoJ", 12: "servoC", 18: "teachMode", 24: "servoL", 25: "toolContact",
+               32: "moveP", 41: "jogStart", 45: "movePath"}
 
 
 class Command(enum.IntEnum):
@@ -37,7 +41,10 @@ class Command(enum.IntEnum):
     STOPL = 33  # deceleration [0], async flag int 1
     STOPJ = 34  # deceleration [0], async flag int 1
     GET_TCP_OFFSET = 40  # -> TCP offset pose in the output doubles
+    SPEED_STOP = 15  # deceleration [0]: ends speed mode (none runs here) and brings the arm to rest
+    SERVO_STOP = 16  # deceleration [0]: the same for servo mode
     GET_FORWARD_KINEMATICS_DEFAULT = 43  # -> TCP pose at the current joints in the output doubles
+    GET_INVERSE_KINEMATICS_DEFAULT = 46  # pose [0..5] -> q nearest the current joints in the output doubles
     IS_STEADY = 47  # -> output int 1: 1 when the arm stands still
     STOP_SCRIPT = 255
 
@@ -91,10 +98,13 @@ class ControlProgram:
         self.waiting_motion = False  # a synchronous move is running: 'done' when it ends
         self.async_motion = False  # an asynchronous one is: progress 'finished' when it ends
         self.async_writes, self.async_op_id = 0, 0
+        self.end_reason = "stop script"  # why the program ends when a handler returns False
         self.handlers = {  # Command -> handler(cmd), True to go on, False to end the program
             Command.STOP_SCRIPT: self._stop_script, Command.MOVEJ: self._move, Command.MOVEL: self._move,
             Command.STOPL: self._stop_motion, Command.STOPJ: self._stop_motion, Command.SET_TCP: self._set_tcp,
-            Command.GET_INVERSE_KINEMATICS_ARGS: self._inverse_kinematics, Command.GET_TCP_OFFSET: self._tcp_offset,
+            Command.GET_INVERSE_KINEMATICS_ARGS: self._inverse_kinematics,
+            Command.GET_INVERSE_KINEMATICS_DEFAULT: self._inverse_kinematics, Command.GET_TCP_OFFSET: self._tcp_offset,
+            Command.SPEED_STOP: self._stop_motion, Command.SERVO_STOP: self._stop_motion,
             Command.GET_FORWARD_KINEMATICS_DEFAULT: self._forward_kinematics, Command.IS_STEADY: self._is_steady,
             Command.PROTECTIVE_STOP: self._protective_stop}
         self._write_async_progress(-1)
@@ -137,16 +147,13 @@ class ControlProgram:
             self.async_motion = False
             self._write_async_progress(-1)
         cmd = self._int(0)
-        if cmd in REALTIME_COMMANDS:
-            self.c.record(f"realtime command {cmd} (not simulated)")
-            self._write_int(0, READY)
-        elif cmd == Command.NO_CMD:
+        if cmd == Command.NO_CMD:
             self.executing = False
             self._write_int(0, READY)
         elif not self.executing:
             self.executing = True
             if not self._process(cmd):
-                self.c.end_program("stop script")
+                self.c.end_program(self.end_reason)
             elif not self.waiting_motion:
                 self._write_int(0, DONE)
 
@@ -154,9 +161,15 @@ class ControlProgram:
         """Start command ``cmd``; False ends the program (stop script)."""
         handler = self.handlers.get(cmd)
         if handler is None:
-            self.c.record(f"command {cmd} not simulated: answered done")
-            return True
+            return self._fault(f"{UNSUPPORTED.get(cmd, f'command {cmd}')} is not supported by the simulated "
+                               "controller")
         return handler(cmd)
+
+    def _fault(self, why: str) -> bool:
+        """Refuse the command: logged, and the program ends (the client's call fails); False."""
+        self.c.record(f"refused: {why}")
+        self.end_reason = "runtime exception"
+        return False
 
     def _stop_script(self, cmd: int) -> bool:
         self.c.record("stopScript")
@@ -166,6 +179,9 @@ class ControlProgram:
         c, sim = self.c, self.c.sim
         target, speed, acc, asynchronous = self._doubles(0, 6), self._double(6), self._double(7), self._int(1) == 1
         name = "moveJ" if cmd == Command.MOVEJ else "moveL"
+        if not (np.isfinite(target).all() and np.isfinite([speed, acc]).all() and speed > 0 and acc > 0):
+            return self._fault(f"{name} {target.tolist()} v={speed} a={acc}: every argument must be finite, "
+                               "speed and acceleration positive")
         c.record(f"{name} {np.round(target, 5).tolist()} v={speed:g} a={acc:g}{' async' if asynchronous else ''}")
         sim.stop(4.0)
         try:
@@ -181,9 +197,15 @@ class ControlProgram:
         return True
 
     def _stop_motion(self, cmd: int) -> bool:
-        self.c.record(f"{'stopL' if cmd == Command.STOPL else 'stopJ'} a={self._double(0):g}")
-        self.c.sim.stop(self._double(0) or 10.0)
-        self._start_motion(self._int(1) == 1)
+        name = {Command.STOPL: "stopL", Command.STOPJ: "stopJ", Command.SPEED_STOP: "speedStop",
+                Command.SERVO_STOP: "servoStop"}[cmd]
+        deceleration = self._double(0)
+        if not (np.isfinite(deceleration) and deceleration >= 0):
+            return self._fault(f"{name} a={deceleration}: the deceleration must be finite and positive")
+        self.c.record(f"{name} a={deceleration:g}")
+        self.c.sim.stop(deceleration or 10.0)
+        if cmd in (Command.STOPL, Command.STOPJ):
+            self._start_motion(self._int(1) == 1)
         return True
 
     def _start_motion(self, asynchronous: bool) -> None:
@@ -200,11 +222,18 @@ class ControlProgram:
         return True
 
     def _inverse_kinematics(self, cmd: int) -> bool:
+        """q [6] whose TCP pose is the pose given, nearest qnear (given, or the current joints)."""
         sim = self.c.sim
-        T = pose_to_matrix(self._doubles(0, 6)) @ np.linalg.inv(sim.tcp)
-        q = nearest_ik(T, self._doubles(6, 6))
-        for k, v in enumerate(q if q is not None else sim.q):
+        pose = self._doubles(0, 6)
+        qnear = self._doubles(6, 6) if cmd == Command.GET_INVERSE_KINEMATICS_ARGS else sim.q
+        if not (np.isfinite(pose).all() and np.isfinite(qnear).all()):
+            return self._fault(f"getInverseKinematics {pose.tolist()}: not finite")
+        q = nearest_ik(pose_to_matrix(pose) @ np.linalg.inv(sim.tcp), qnear)
+        if q is None:
+            return self._fault(f"getInverseKinematics {np.round(pose, 5).tolist()}: no solution (out of reach)")
+        for k, v in enumerate(q):
             self._write_double(k, v)
+        self.c.record(f"getInverseKinematics {np.round(pose, 5).tolist()} -> {np.round(q, 5).tolist()}")
         return True
 
     def _tcp_offset(self, cmd: int) -> bool:
