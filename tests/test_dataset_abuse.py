@@ -127,3 +127,28 @@ def test_bad_overrides_and_outputs_are_one_line(library, tmp_path, capsys):
         assert main(["generate", *args(library.root, tmp_path / "ro" / "ds")]) == 2
         assert "cannot write there" in one_line_error(capsys)
     assert not (tmp_path / "a").exists() and (tmp_path / "file").read_text() == "x"
+
+
+@pytest.mark.parametrize("damage, says", [
+    (lambda gt: [gt], "not a BOP file"),
+    (lambda gt: {k: [{**e, "obj_id": "cup"} for e in v] for k, v in gt.items()}, "obj_id 'cup' is not an integer"),
+    (lambda gt: {k: [{"obj_id": 1}] for k in gt}, "KeyError: 'cam_R_m2c'"),
+])
+def test_view_on_a_broken_scene_gt_is_one_line(library, tmp_path, capsys, damage, says):
+    import json
+
+    out = generate(load_config(None, args(library.root, tmp_path / "ds")))
+    path = out / "train_pbr" / "000000" / "scene_gt.json"
+    path.write_text(json.dumps(damage(json.loads(path.read_text()))))
+    capsys.readouterr()
+    assert main(["view", str(out), "--out", str(tmp_path / "view")]) == 2
+    assert says in one_line_error(capsys)
+    assert not (tmp_path / "view").exists()
+
+
+def test_view_says_which_files_are_missing(library, tmp_path, caplog):
+    out = generate(load_config(None, args(library.root, tmp_path / "ds")))
+    (out / "train_pbr" / "000000" / "mask_visib" / "000000_000000.png").unlink()
+    assert main(["view", str(out), "--out", str(tmp_path / "view")]) == 0
+    assert "1 file(s) missing or unreadable, not drawn: 000000/mask_visib/000000_000000.png" in caplog.text
+    assert "000000/mask_visib/000000_000000.png" in (tmp_path / "view" / "index.html").read_text()

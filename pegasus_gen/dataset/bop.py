@@ -176,24 +176,44 @@ class BopFrame:
 
 def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
     """Iterate over the BopFrames of a BOP split folder, scene by scene, in im_id order (the first
-    ``max_per_scene`` of each scene when given)."""
+    ``max_per_scene`` of each scene when given). A scene whose JSON files do not follow the BOP format is a
+    PegasusError naming the file and what is wrong."""
     split_dir = Path(split_dir)
     for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        gt = read_json(scene / "scene_gt.json")
-        cams = read_json(scene / "scene_camera.json")
-        infos = read_json(scene / "scene_gt_info.json") if (scene / "scene_gt_info.json").is_file() else {}
-        for im_id in sorted(gt, key=int)[:max_per_scene]:
-            image = next((scene / "rgb" / f"{int(im_id):06d}{e}" for e in IMAGE_EXTENSIONS
-                          if (scene / "rgb" / f"{int(im_id):06d}{e}").is_file()), None)
-            if image is None:
-                raise PegasusError(f"{scene}/rgb: no image {int(im_id):06d}")
+        yield from _scene_frames(scene, max_per_scene)
+
+
+def _scene_frames(scene: Path, max_per_scene: int | None) -> list[BopFrame]:
+    gt = read_json(scene / "scene_gt.json")
+    cams = read_json(scene / "scene_camera.json")
+    infos = read_json(scene / "scene_gt_info.json") if (scene / "scene_gt_info.json").is_file() else {}
+    for name, table in (("scene_gt.json", gt), ("scene_camera.json", cams), ("scene_gt_info.json", infos)):
+        if not isinstance(table, dict) or not all(isinstance(k, str) and k.isdigit() for k in table):
+            raise PegasusError(f"{scene / name}: not a BOP file (an object keyed by image ids)")
+    frames = []
+    for im_id in sorted(gt, key=int)[:max_per_scene]:
+        where = f"{scene}: image {im_id}"
+        try:
             instances = []
             for n, entry in enumerate(gt[im_id]):
+                obj_id = entry["obj_id"]
+                if not isinstance(obj_id, int) or isinstance(obj_id, bool):
+                    raise ValueError(f"obj_id {obj_id!r} is not an integer")
                 T = np.eye(4)
                 T[:3, :3] = np.array(entry["cam_R_m2c"], dtype=np.float64).reshape(3, 3)
                 T[:3, 3] = np.array(entry["cam_t_m2c"], dtype=np.float64) / 1000.0
-                visib = infos[im_id][n]["visib_fract"] if im_id in infos else None
-                instances.append(BopInstance(int(entry["obj_id"]), T, n, visib))
-            depth = scene / "depth" / f"{int(im_id):06d}.png"
-            yield BopFrame(scene, int(im_id), image, np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3),
-                           instances, depth if depth.is_file() else None, float(cams[im_id].get("depth_scale", 1.0)))
+                visib = float(infos[im_id][n]["visib_fract"]) if im_id in infos else None
+                instances.append(BopInstance(obj_id, T, n, visib))
+            K = np.array(cams[im_id]["cam_K"], dtype=np.float64).reshape(3, 3)
+            depth_scale = float(cams[im_id].get("depth_scale", 1.0))
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+            raise PegasusError(f"{where}: scene_gt/scene_camera do not follow the BOP format "
+                               f"({type(exc).__name__}: {exc})") from None
+        image = next((scene / "rgb" / f"{int(im_id):06d}{e}" for e in IMAGE_EXTENSIONS
+                      if (scene / "rgb" / f"{int(im_id):06d}{e}").is_file()), None)
+        if image is None:
+            raise PegasusError(f"{scene}/rgb: no image {int(im_id):06d}")
+        depth = scene / "depth" / f"{int(im_id):06d}.png"
+        frames.append(BopFrame(scene, int(im_id), image, K, instances, depth if depth.is_file() else None,
+                               depth_scale))
+    return frames

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import html
+import logging
 from pathlib import Path
 
 import cv2
@@ -14,6 +15,8 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 from pegasus_gen.io.files import write_atomic
 from pegasus_gen.io.images import write_image
+
+log = logging.getLogger(__name__)
 
 # edges of the DOPE-ordered cuboid: top face, bottom face, verticals
 BOX_EDGES = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
@@ -57,6 +60,17 @@ def _mask(path: Path) -> np.ndarray | None:
     return None if m is None else m > 0
 
 
+def _missing_note(missing: list[str]) -> str:
+    """The gallery's warning about files it could not show (also logged), empty when none."""
+    if not missing:
+        return ""
+    unique = sorted(set(missing))
+    text = f"{len(unique)} file(s) missing or unreadable, not drawn: {', '.join(unique[:5])}" + \
+        (" ..." if len(unique) > 5 else "")
+    log.warning("view: %s", text)
+    return f'<p style="color:#f88">{html.escape(text)}</p>'
+
+
 def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images: int = 10) -> Path:
     """Overlays of up to ``max_images`` images per scene written to ``out``/SSSSSS_IIIIII.jpg and a gallery
     ``out``/index.html linking them; returns the gallery's path."""
@@ -64,7 +78,7 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset (or choose --split)")
     boxes = model_boxes(root)
-    cards = []
+    cards, missing = [], []
     frames = list(bop_frames(root / split, max_images))
     for frame in tqdm(frames, desc="view", unit="image"):
         image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
@@ -75,10 +89,14 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
         for inst in frame.instances:
             label = f"{inst.obj_id}" + (f" {inst.visib_fract:.0%}" if inst.visib_fract is not None else "")
             caption.append(f"obj {label}")
+            if inst.obj_id not in boxes:
+                missing.append(f"models_info.json: obj {inst.obj_id} (no box drawn)")
             bbox_min, bbox_size = boxes.get(inst.obj_id, (np.zeros(3), np.zeros(3)))
             name = f"{frame.im_id:06d}_{inst.index:06d}.png"
-            draw_instance(image, frame.K, inst.T, bbox_min, bbox_size, _mask(frame.scene / "mask" / name),
-                          _mask(frame.scene / "mask_visib" / name), _colour(inst.obj_id), label)
+            masks = [_mask(frame.scene / folder / name) for folder in ("mask", "mask_visib")]
+            missing += [f"{frame.scene.name}/{folder}/{name}" for folder, m in zip(("mask", "mask_visib"), masks)
+                        if m is None]
+            draw_instance(image, frame.K, inst.T, bbox_min, bbox_size, *masks, _colour(inst.obj_id), label)
         file = f"{frame.scene.name}_{frame.im_id:06d}.jpg"
         write_image(out / file, image, jpg_quality=90)
         cards.append((file, f"scene {frame.scene.name} image {frame.im_id}", ", ".join(caption)))
@@ -89,6 +107,7 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
 <style>body{{font-family:sans-serif;background:#222;color:#ddd}} main{{display:flex;flex-wrap:wrap;gap:8px}}
 figure{{margin:0;width:320px}} img{{width:320px}} figcaption{{font-size:12px}}</style></head>
 <body><h2>{html.escape(str(root))} ({split}): {len(cards)} images</h2>
+{_missing_note(missing)}
 <p>thin contour: full mask, thick: visible mask; box: model bounding box at the GT pose; axes x red, y green,
 z blue; label: obj_id and visible fraction</p>
 <main>
