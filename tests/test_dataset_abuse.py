@@ -28,9 +28,11 @@ def files(root):
 
 
 def one_line_error(capsys):
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "Traceback" not in err[0], err
-    return err[0]
+    """The one error line of stderr (progress bars aside), and no traceback."""
+    err = capsys.readouterr().err
+    lines = [line for line in err.strip().splitlines() if not line.startswith(("generate:", "view:"))]
+    assert len(lines) == 1 and lines[0].startswith("pegasus: error: ") and "Traceback" not in err, err
+    return lines[0]
 
 
 def test_a_second_writer_is_refused_while_the_first_runs(library, tmp_path, capsys):
@@ -152,3 +154,23 @@ def test_view_says_which_files_are_missing(library, tmp_path, caplog):
     assert main(["view", str(out), "--out", str(tmp_path / "view")]) == 0
     assert "1 file(s) missing or unreadable, not drawn: 000000/mask_visib/000000_000000.png" in caplog.text
     assert "000000/mask_visib/000000_000000.png" in (tmp_path / "view" / "index.html").read_text()
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_scene_that_looks_complete(library, tmp_path, capsys, monkeypatch):
+    import errno
+
+    from pegasus_gen.dataset import generate as generate_module
+
+    real, calls = generate_module.write_image, []
+
+    def write_image(path, *a, **k):
+        calls.append(path)
+        if len(calls) == 3:  # the disk fills up while the first scene is being written
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(generate_module, "write_image", write_image)
+    assert main(["generate", *args(library.root, tmp_path / "ds", "frames_per_scene=2")]) == 2
+    assert "No space left on device" in one_line_error(capsys)
+    split = tmp_path / "ds" / "train_pbr"
+    assert list(split.iterdir()) == []  # the half-written scene is gone, none looks complete

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import sys
 
@@ -23,6 +24,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# errors of the machine a command runs on, reported in one line: no space, over quota, read-only, no permission
+ENVIRONMENT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -33,6 +38,14 @@ def main(argv=None) -> int:
         return args.func(args)
     except PegasusError as exc:
         print(f"pegasus: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if exc.errno not in ENVIRONMENT_ERRNOS:
+            raise
+        # the machine, not the program: a full disk, a read-only or unwritable place (files being written are
+        # written beside their final name and renamed, so nothing half-written is left under it)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"pegasus: error: {where}{exc.strerror}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("pegasus: interrupted", file=sys.stderr)
