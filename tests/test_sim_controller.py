@@ -133,6 +133,16 @@ def test_unsafe_commands_are_refused_and_nothing_is_sent(controller):
     log = "\n".join(controller.log_lines())
     assert "moveL" not in log and "moveJ" not in log
 
+    # two ends inside the 60 degree tilt cone (48.9 and 44.7 degrees), the SLERP between them outside it
+    with UR5(BridgeConfig(host=controller.host)) as robot:
+        ends = [robot.tcp_pose(), robot.tcp_pose()]
+        for T, rotvec in zip(ends, ([1.0, -2.6, 1.26], [2.46, 1.48, 1.18])):
+            T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+        robot.move_l(ends[0])
+        with pytest.raises(UnsafeCommand, match="moveL refused at .* of the way: the tool is tilted"):
+            robot.move_l(ends[1])
+    assert sum("moveL" in line for line in controller.log_lines()) == 1  # the first end's only
+
 
 def test_dry_run_sends_nothing(controller):
     with UR5(BridgeConfig(host=controller.host, dry_run=True)) as robot:
