@@ -35,3 +35,24 @@ def test_auto_picks_cuda_when_it_works():
     out = render(synthetic.tabletop_scene(1000, np.random.default_rng(1))[0], intrinsics_from_fov(64, 48, 60),
                  look_at([1, 0, 1], [0, 0, 0]), 64, 48, device="auto")
     assert out.backend == "cuda"
+
+
+def test_contact_shadows_darken_alike_on_both_backends():
+    import trimesh
+
+    from pegasus_gen.render.shadows import ShadowParams, contact_shadows
+
+    env, objects, poses = synthetic.tabletop_scene(100_000, np.random.default_rng(2), sh_degree=3)
+    placed = [o.transformed(T) for o, T in zip(objects, poses)]
+    meshes = [trimesh.creation.box(bounds=[o.means.min(0), o.means.max(0)]).apply_transform(T)
+              for o, T in zip(objects, poses)]
+    shaded_env, shaded = contact_shadows(env, placed, meshes, ShadowParams(), np.random.default_rng(0))
+    w, h = 320, 240
+    K, T = intrinsics_from_fov(w, h, 55), look_at([0.6, -0.4, 0.6], [0, 0, 0.05])
+    shadow = {}
+    for device in ("cpu", "cuda"):
+        plain = render([env, *placed], K, T, w, h, device=device)
+        dark = render([shaded_env, *shaded], K, T, w, h, device=device)
+        shadow[device] = (plain.rgb - dark.rgb).mean(-1)
+    assert (shadow["cpu"] > 0.02).mean() > 0.002
+    assert np.abs(shadow["cpu"] - shadow["cuda"]).mean() < 1 / 255

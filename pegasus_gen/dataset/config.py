@@ -60,6 +60,26 @@ class ObjectSpec(_Strict):
         return self
 
 
+class ShadowConfig(_Strict):
+    """Contact shadows and ambient occlusion (``pegasus_gen.render.shadows``): splats near placed objects
+    darkened by the share of the sky (and of an optional key light) the objects hide."""
+
+    enabled: bool = False
+    radius: float = Field(default=0.1, gt=0.0, le=2.0)  # m: occluders farther than this along a sky ray do not count
+    strength: float = Field(default=0.6, ge=0.0, le=1.0)  # colour x (1 - strength) at full occlusion
+    rays: int = Field(default=32, ge=1, le=1024)  # sky rays per splat
+    light_direction: Optional[tuple[float, float, float]] = None  # world, towards a key light; None: sky only
+    light_weight: float = Field(default=0.5, ge=0.0, le=1.0)  # share of the key light in the darkening
+    light_cone_deg: float = Field(default=8.0, ge=0.0, lt=90.0)  # the light's cone: soft shadow edges
+    light_rays: int = Field(default=8, ge=1, le=256)
+
+    @model_validator(mode="after")
+    def _light(self):
+        if self.light_direction is not None and not 0 < sum(v * v for v in self.light_direction) < float("inf"):
+            raise ValueError("light_direction must be a non-zero vector")
+        return self
+
+
 def _demo_objects() -> list[ObjectSpec]:
     return [ObjectSpec(asset=i, count=(0, 1)) for i in range(1, 9)]
 
@@ -78,6 +98,7 @@ class GenerateConfig(_Strict):
     dynamic: bool = False  # record the objects while they fall instead of after they rest
     fps: float = Field(default=30.0, gt=0)  # camera frame rate of dynamic scenes
     camera: CameraConfig = Field(default_factory=CameraConfig)
+    shadows: ShadowConfig = Field(default_factory=ShadowConfig)
     trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     image_format: Literal["jpg", "png"] = "jpg"

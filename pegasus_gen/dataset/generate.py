@@ -52,6 +52,8 @@ from pegasus_gen.io.images import rgb_to_uint8, write_image
 from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import render
+from pegasus_gen.render.shadows import ShadowParams, contact_shadows
+from pegasus_gen.splats.cloud import SplatCloud
 
 CONFIG_FILE = "pegasus_config.yaml"
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
@@ -199,6 +201,19 @@ def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> li
     return interpolate_poses(keys, cfg.frames_per_scene)
 
 
+def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateConfig,
+                  rng: np.random.Generator) -> tuple[SplatCloud, list[SplatCloud]]:
+    """The environment's splats and each kept object's splats placed at ``poses`` (labelled 1.. in order),
+    with contact shadows when ``cfg.shadows`` asks for them (``rng``: the shadow rays' spin)."""
+    kept = sorted(poses)
+    placed = [plan.objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
+    if not cfg.shadows.enabled:
+        return plan.environment.splats, placed
+    meshes = [plan.objects[i].surface.copy().apply_transform(poses[i]) for i in kept]
+    params = ShadowParams(**cfg.shadows.model_dump(exclude={"enabled"}))
+    return contact_shadows(plan.environment.splats, placed, meshes, params, rng)
+
+
 class _Writer:
     """Encodes and writes images on threads while the caller renders; ``close`` waits and re-raises."""
 
@@ -236,14 +251,15 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     models = {a.manifest.obj_id: MeshRaycaster(a.surface) for a in objects}
     scene_gt, scene_camera, scene_info = {}, {}, {}
     coco_images, coco_instances = [], []
-    placed = None
+    environment, placed = None, None
     writer = _Writer()
     try:
         for im_id, T_cam_world in enumerate(cams):
             poses = frame_poses(plan, im_id, cfg.dynamic)
-            if placed is None or cfg.dynamic:  # static scenes place their objects once
-                placed = [objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
-            out = render([env.splats, *placed], K, T_cam_world, W, H, device=cfg.device)
+            if placed is None or cfg.dynamic:  # static scenes place (and shade) their objects once
+                shading_rng = np.random.default_rng([cfg.seed, scene_id, im_id])
+                environment, placed = place_objects(plan, poses, cfg, shading_rng)
+            out = render([environment, *placed], K, T_cam_world, W, H, device=cfg.device)
             rgb_name = f"rgb/{im_id:06d}.{cfg.image_format}"
             writer.image(scene_dir / rgb_name, rgb_to_uint8(out.rgb), cfg.jpg_quality)
             writer.image(scene_dir / "depth" / f"{im_id:06d}.png", bop.depth_to_png_values(out.depth, cfg.depth_scale))

@@ -1,7 +1,8 @@
 """Exact z-depth images of triangle meshes by ray casting (Open3D's Embree scene), independent of the splats.
 
-Used where a mesh is the truth: checking a dataset's masks and depth against its models (validate) and
-measuring how much of a camera's view an environment fills (trajectories).
+Used where a mesh is the truth: checking a dataset's masks and depth against its models (validate),
+measuring how much of a camera's view an environment fills (trajectories) and which splats placed objects
+shade (shadows).
 """
 
 from __future__ import annotations
@@ -33,7 +34,12 @@ class MeshRaycaster:
     def first_hits(self, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """[N] ray parameter t of the first hit of each ray origin [3] + t directions [N, 3]; inf on a miss
         (with unit directions, t is the distance)."""
-        rays = np.concatenate([np.broadcast_to(origin, directions.shape), directions], 1).astype(np.float32)
+        return self.cast(np.broadcast_to(origin, np.shape(directions)), directions)
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """[N] ray parameter t of the first hit of each ray origins[i] [N, 3] + t directions[i] [N, 3]; inf on
+        a miss."""
+        rays = np.concatenate([origins, directions], 1).astype(np.float32)
         return self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
 
     def view_coverage(self, K: np.ndarray, T_cam_world: np.ndarray, width: int, height: int,

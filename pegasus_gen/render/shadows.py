@@ -1,0 +1,134 @@
+"""Contact shadows and ambient occlusion for composed scenes: splats darkened where placed objects hide the sky.
+
+A scan bakes the lighting of the place it was made in, so an object splat dropped into an environment casts
+no shadow and the table under it stays as bright as before: the composition looks pasted. Here each splat
+near a placed object is darkened by how much of the sky hemisphere (cosine-weighted about world up) the
+*other* placed objects' meshes hide within ``radius`` of it, and optionally by how much of a key light's
+cone they block. The darkening scales the splat's colour (its SH DC term and, as colour is linear in them,
+every higher band), so it is the same for every render backend. Splats farther than ``radius`` from every
+object's bounding sphere are not touched.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import trimesh
+
+from pegasus_gen.render.raycast import MeshRaycaster
+from pegasus_gen.splats.cloud import SplatCloud
+from pegasus_gen.splats.sh import C0
+
+
+@dataclass(frozen=True)
+class ShadowParams:
+    """How strong and how wide the shadows are (the generate config's ``shadows`` section)."""
+
+    radius: float = 0.1  # m: occluders farther than this along a sky ray do not darken
+    strength: float = 0.6  # darkening at full occlusion: colour x (1 - strength)
+    rays: int = 32  # sky rays per splat
+    light_direction: tuple[float, float, float] | None = None  # world, towards a key light
+    light_weight: float = 0.5  # share of the key light in the darkening (the sky has the rest)
+    light_cone_deg: float = 8.0  # half-angle of the light's cone (soft shadow edges)
+    light_rays: int = 8
+
+
+def hemisphere_directions(count: int) -> np.ndarray:
+    """[count, 3] unit directions over the upper (z >= 0) hemisphere, cosine-weighted: a Fibonacci spiral
+    on the unit disc lifted onto the hemisphere (each direction stands for an equal share of the sky's
+    irradiance on a horizontal surface)."""
+    i = np.arange(count) + 0.5
+    r = np.sqrt(i / count)
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r**2)], axis=1)
+
+
+def cone_directions(axis: np.ndarray, half_angle_deg: float, count: int) -> np.ndarray:
+    """[count, 3] unit directions spread evenly (Fibonacci) over the cone of ``half_angle_deg`` about
+    ``axis`` [3]."""
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    i = np.arange(count) + 0.5
+    cos_t = 1.0 - (i / count) * (1.0 - np.cos(np.radians(half_angle_deg)))
+    sin_t = np.sqrt(1.0 - cos_t**2)
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    helper = np.eye(3)[np.argmin(np.abs(axis))]
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    return (np.outer(cos_t, axis) + np.outer(sin_t * np.cos(phi), u) + np.outer(sin_t * np.sin(phi), v))
+
+
+def _blocked_fraction(points: np.ndarray, directions: np.ndarray, scene: MeshRaycaster, max_t: float,
+                      rng: np.random.Generator, spin: bool) -> np.ndarray:
+    """[N] fraction of the rays from each point [N, 3] along ``directions`` [R, 3] that hit ``scene`` before
+    ``max_t``; with ``spin`` each point's set of directions is turned by a random angle about z (no banding
+    from one shared set)."""
+    n, r = len(points), len(directions)
+    if spin:
+        angle = rng.uniform(0.0, 2.0 * np.pi, n)[:, None]
+        c, s = np.cos(angle), np.sin(angle)
+        d = np.stack([c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1],
+                      np.broadcast_to(directions[:, 2], (n, r))], axis=-1)
+    else:
+        d = np.broadcast_to(directions, (n, r, 3))
+    origins = np.repeat(points, r, axis=0)
+    t = scene.cast(origins, d.reshape(-1, 3))
+    return (t < max_t).reshape(n, r).mean(axis=1)
+
+
+def occlusion(points: np.ndarray, occluders: Sequence[trimesh.Trimesh], params: ShadowParams,
+              rng: np.random.Generator) -> np.ndarray:
+    """[N] darkening weight in 0..1 at each point [N, 3] (metres, world): the cosine-weighted share of the sky
+    that ``occluders`` (meshes in the world frame) hide within ``params.radius``, mixed with the share of the
+    key light's cone they block (any distance) when a light direction is given."""
+    points = np.asarray(points, np.float64)
+    if not len(points) or not occluders:
+        return np.zeros(len(points))
+    scene = MeshRaycaster(trimesh.util.concatenate(list(occluders)))
+    sky = _blocked_fraction(points, hemisphere_directions(params.rays), scene, params.radius, rng, spin=True)
+    if params.light_direction is None:
+        return sky
+    cone = cone_directions(np.asarray(params.light_direction), params.light_cone_deg, params.light_rays)
+    light = _blocked_fraction(points, cone, scene, np.inf, rng, spin=False)
+    return (1.0 - params.light_weight) * sky + params.light_weight * light
+
+
+def darken(cloud: SplatCloud, factor: np.ndarray) -> SplatCloud:
+    """The cloud with each splat's colour multiplied by ``factor`` [N] (0..1): colour = C0 * DC + 0.5 + the
+    view-dependent bands, so DC' = (factor (C0 DC + 0.5) - 0.5) / C0 and the higher bands scale by factor."""
+    f = np.asarray(factor, np.float64)[:, None]
+    sh = cloud.sh.astype(np.float64)
+    sh[:, 0] = (f * (C0 * sh[:, 0] + 0.5) - 0.5) / C0
+    sh[:, 1:] *= f[:, :, None]
+    return cloud.replace(sh=sh)
+
+
+def _near(cloud: SplatCloud, spheres: list[tuple[np.ndarray, float]], radius: float) -> np.ndarray:
+    """[N] bool: splats within ``radius`` of any sphere (centre [3], radius)."""
+    near = np.zeros(len(cloud), bool)
+    for centre, r in spheres:
+        near |= np.linalg.norm(cloud.means - centre, axis=1) < r + radius
+    return near
+
+
+def contact_shadows(environment: SplatCloud, objects: Sequence[SplatCloud], meshes: Sequence[trimesh.Trimesh],
+                    params: ShadowParams, rng: np.random.Generator) -> tuple[SplatCloud, list[SplatCloud]]:
+    """The environment's and the placed objects' splats (world frame) darkened by the placed objects' meshes
+    (``meshes[k]``: object k's surface in the world frame): the environment by all of them, each object by
+    the others. Returns (environment, objects)."""
+    spheres = [(m.bounding_sphere.primitive.center, m.bounding_sphere.primitive.radius) for m in meshes]
+
+    def shade(cloud: SplatCloud, occluders: list[trimesh.Trimesh], others: list) -> SplatCloud:
+        near = _near(cloud, others, params.radius)
+        if not near.any():
+            return cloud
+        factor = np.ones(len(cloud))
+        factor[near] = 1.0 - params.strength * occlusion(cloud.means[near], occluders, params, rng)
+        return darken(cloud, factor)
+
+    shaded_env = shade(environment, list(meshes), spheres)
+    shaded_objects = [shade(cloud, [m for j, m in enumerate(meshes) if j != k],
+                            [s for j, s in enumerate(spheres) if j != k]) for k, cloud in enumerate(objects)]
+    return shaded_env, shaded_objects
