@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal, Optional, Union
+from typing import Annotated, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import parse_yaml
@@ -80,6 +80,37 @@ class ShadowConfig(_Strict):
         return self
 
 
+def _range(lo: float, hi: float):
+    """A (min, max) pair field with min <= max, both within [lo, hi]."""
+    def check(value):
+        if not lo <= value[0] <= value[1] <= hi:
+            raise ValueError(f"must be (min, max) with {lo:g} <= min <= max <= {hi:g}")
+        return value
+    return AfterValidator(check)
+
+
+Range = tuple[float, float]
+
+
+class AppearanceConfig(_Strict):
+    """Appearance and sensor randomisation, drawn per scene (objects, environment) and per frame (camera),
+    from the scene's seed: each value is drawn uniformly from its (min, max)."""
+
+    enabled: bool = False
+    object_gain: Annotated[Range, _range(0.1, 10.0)] = (0.85, 1.15)  # per instance and channel
+    object_hue_deg: float = Field(default=8.0, ge=0.0, le=180.0)  # per instance, hue turned by up to this
+    environment_tint: Annotated[Range, _range(0.1, 10.0)] = (0.9, 1.1)  # per scene and channel
+    exposure_ev: Annotated[Range, _range(-10.0, 10.0)] = (-0.6, 0.4)  # per frame: gain 2^ev
+    white_balance: Annotated[Range, _range(0.1, 10.0)] = (0.9, 1.1)  # per frame, red and blue gains (green 1)
+    gamma: Annotated[Range, _range(0.1, 10.0)] = (0.85, 1.2)  # per frame: out = in^(1/gamma)
+    shot_noise: Annotated[Range, _range(0.0, 1.0)] = (0.0, 0.03)  # std at value 1 (std = this * sqrt(value))
+    read_noise: Annotated[Range, _range(0.0, 1.0)] = (0.0, 0.01)
+    defocus_px: Annotated[Range, _range(0.0, 50.0)] = (0.0, 1.2)  # blur disc radius
+    # fraction of the frame interval the shutter is open: a streak of the image motion per frame x this
+    shutter: Annotated[Range, _range(0.0, 1.0)] = (0.0, 0.3)
+    jpg_quality: Annotated[tuple[int, int], _range(1, 100)] = (70, 95)  # per frame (image_format jpg)
+
+
 def _demo_objects() -> list[ObjectSpec]:
     return [ObjectSpec(asset=i, count=(0, 1)) for i in range(1, 9)]
 
@@ -99,6 +130,7 @@ class GenerateConfig(_Strict):
     fps: float = Field(default=30.0, gt=0)  # camera frame rate of dynamic scenes
     camera: CameraConfig = Field(default_factory=CameraConfig)
     shadows: ShadowConfig = Field(default_factory=ShadowConfig)
+    appearance: AppearanceConfig = Field(default_factory=AppearanceConfig)
     trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     image_format: Literal["jpg", "png"] = "jpg"

@@ -40,6 +40,7 @@ from tqdm import tqdm
 
 from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.dataset import bop
+from pegasus_gen.dataset.appearance import environment_tint, frame_effects, image_motion, object_colour_transforms
 from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import GenerateConfig
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
@@ -52,10 +53,15 @@ from pegasus_gen.io.images import rgb_to_uint8, write_image
 from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import render
+from pegasus_gen.render.sensor import apply_sensor
 from pegasus_gen.render.shadows import ShadowParams, contact_shadows
 from pegasus_gen.splats.cloud import SplatCloud
+from pegasus_gen.splats.colour import transform_colour
 
 CONFIG_FILE = "pegasus_config.yaml"
+# random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
+# switching shadows or randomisation on changes no object, pose or camera
+SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM = 1, 2, 3
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
 RESUMABLE_KEYS = ("output", "library", "device", "workers")
 
@@ -201,17 +207,51 @@ def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> li
     return interpolate_poses(keys, cfg.frames_per_scene)
 
 
-def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateConfig,
+@dataclass
+class SceneLooks:
+    """A scene's colour transforms [3, 3]: the environment's tint and each kept object instance's (in order)."""
+
+    environment: np.ndarray
+    objects: list[np.ndarray]
+
+
+def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | None:
+    """The appearance draws of scene ``scene_id`` with ``count`` kept objects (None without randomisation)."""
+    if not cfg.appearance.enabled:
+        return None
+    rng = np.random.default_rng([cfg.seed, scene_id, APPEARANCE_STREAM])
+    return SceneLooks(environment_tint(cfg.appearance, rng), object_colour_transforms(cfg.appearance, count, rng))
+
+
+def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateConfig, looks: SceneLooks | None,
                   rng: np.random.Generator) -> tuple[SplatCloud, list[SplatCloud]]:
     """The environment's splats and each kept object's splats placed at ``poses`` (labelled 1.. in order),
-    with contact shadows when ``cfg.shadows`` asks for them (``rng``: the shadow rays' spin)."""
+    recoloured by ``looks`` and shaded when ``cfg.shadows`` asks for it (``rng``: the shadow rays' spin)."""
     kept = sorted(poses)
+    environment = plan.environment.splats
     placed = [plan.objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
+    if looks is not None:
+        environment = transform_colour(environment, looks.environment)
+        placed = [transform_colour(cloud, M) for cloud, M in zip(placed, looks.objects)]
     if not cfg.shadows.enabled:
-        return plan.environment.splats, placed
+        return environment, placed
     meshes = [plan.objects[i].surface.copy().apply_transform(poses[i]) for i in kept]
     params = ShadowParams(**cfg.shadows.model_dump(exclude={"enabled"}))
-    return contact_shadows(plan.environment.splats, placed, meshes, params, rng)
+    return contact_shadows(environment, placed, meshes, params, rng)
+
+
+def camera_image(rgb: np.ndarray, cfg: GenerateConfig, scene_id: int, im_id: int, K: np.ndarray,
+                 cams: list[np.ndarray], centre: np.ndarray) -> tuple[np.ndarray, int]:
+    """(the rendered ``rgb`` [H, W, 3] (0..1) as the randomised camera of frame ``im_id`` records it, its JPEG
+    quality); the motion blur follows the image motion of ``centre`` [3] (world) between the frame's
+    neighbours in ``cams``."""
+    if not cfg.appearance.enabled:
+        return rgb, cfg.jpg_quality
+    before, after = max(im_id - 1, 0), min(im_id + 1, len(cams) - 1)
+    motion = image_motion(K, cams[before], cams[after], centre, after - before)
+    rng = np.random.default_rng([cfg.seed, scene_id, CAMERA_STREAM, im_id])
+    effects, quality = frame_effects(cfg.appearance, rng, motion)
+    return apply_sensor(rgb, effects, rng), quality
 
 
 class _Writer:
@@ -251,17 +291,20 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     models = {a.manifest.obj_id: MeshRaycaster(a.surface) for a in objects}
     scene_gt, scene_camera, scene_info = {}, {}, {}
     coco_images, coco_instances = [], []
+    looks = scene_looks(cfg, scene_id, len(kept))
     environment, placed = None, None
     writer = _Writer()
     try:
         for im_id, T_cam_world in enumerate(cams):
             poses = frame_poses(plan, im_id, cfg.dynamic)
             if placed is None or cfg.dynamic:  # static scenes place (and shade) their objects once
-                shading_rng = np.random.default_rng([cfg.seed, scene_id, im_id])
-                environment, placed = place_objects(plan, poses, cfg, shading_rng)
+                shading_rng = np.random.default_rng([cfg.seed, scene_id, SHADOW_STREAM, im_id])
+                environment, placed = place_objects(plan, poses, cfg, looks, shading_rng)
             out = render([environment, *placed], K, T_cam_world, W, H, device=cfg.device)
+            centre = np.mean([poses[i][:3, 3] for i in kept], axis=0)
+            rgb, quality = camera_image(out.rgb, cfg, scene_id, im_id, K, cams, centre)
             rgb_name = f"rgb/{im_id:06d}.{cfg.image_format}"
-            writer.image(scene_dir / rgb_name, rgb_to_uint8(out.rgb), cfg.jpg_quality)
+            writer.image(scene_dir / rgb_name, rgb_to_uint8(rgb), quality)
             writer.image(scene_dir / "depth" / f"{im_id:06d}.png", bop.depth_to_png_values(out.depth, cfg.depth_scale))
             scene_camera[str(im_id)] = bop.camera_entry(K, T_cam_world, cfg.depth_scale)
             coco_images.append({"id": im_id, "file_name": rgb_name, "width": W, "height": H})

@@ -19,7 +19,7 @@ import trimesh
 
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.splats.cloud import SplatCloud
-from pegasus_gen.splats.sh import C0
+from pegasus_gen.splats.colour import transform_colour
 
 
 @dataclass(frozen=True)
@@ -96,13 +96,8 @@ def occlusion(points: np.ndarray, occluders: Sequence[trimesh.Trimesh], params: 
 
 
 def darken(cloud: SplatCloud, factor: np.ndarray) -> SplatCloud:
-    """The cloud with each splat's colour multiplied by ``factor`` [N] (0..1): colour = C0 * DC + 0.5 + the
-    view-dependent bands, so DC' = (factor (C0 DC + 0.5) - 0.5) / C0 and the higher bands scale by factor."""
-    f = np.asarray(factor, np.float64)[:, None]
-    sh = cloud.sh.astype(np.float64)
-    sh[:, 0] = (f * (C0 * sh[:, 0] + 0.5) - 0.5) / C0
-    sh[:, 1:] *= f[:, :, None]
-    return cloud.replace(sh=sh)
+    """The cloud with each splat's colour multiplied by ``factor`` [N] (0..1), on every SH band."""
+    return transform_colour(cloud, np.asarray(factor, np.float64)[:, None, None] * np.eye(3))
 
 
 def _near(cloud: SplatCloud, spheres: list[tuple[np.ndarray, float]], radius: float) -> np.ndarray:

@@ -1,0 +1,50 @@
+"""Appearance and sensor randomisation of a scene, drawn from the config's ranges and the scene's seed.
+
+Per scene: a colour transform for each object instance (per-channel gain, then a hue turn) and a tint of the
+environment (per-channel gain), applied to the splats. Per frame: the camera (exposure, white balance,
+gamma, shot and read noise, defocus, motion blur along the image motion of the objects' centre, JPEG
+quality), applied to the rendered image. None of it moves anything: the labels are those of the scene
+without it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pegasus_gen.dataset.config import AppearanceConfig
+from pegasus_gen.render.sensor import SensorEffects
+from pegasus_gen.splats.colour import hue_rotation
+
+
+def object_colour_transforms(cfg: AppearanceConfig, count: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """[3, 3] colour transform of each of ``count`` object instances: diag(gains) after a hue turn."""
+    return [np.diag(rng.uniform(*cfg.object_gain, 3)) @ hue_rotation(rng.uniform(-1, 1) * cfg.object_hue_deg)
+            for _ in range(count)]
+
+
+def environment_tint(cfg: AppearanceConfig, rng: np.random.Generator) -> np.ndarray:
+    """[3, 3] colour transform of the environment: per-channel gains."""
+    return np.diag(rng.uniform(*cfg.environment_tint, 3))
+
+
+def image_motion(K: np.ndarray, T_before: np.ndarray, T_after: np.ndarray, point: np.ndarray,
+                 frames_apart: int) -> np.ndarray:
+    """[2] px per frame that ``point`` [3] (world, m) moves in the image between cameras T_before and
+    T_after (T_cam_world [4, 4]) ``frames_apart`` frames apart."""
+    def project(T):
+        p = T[:3, :3] @ point + T[:3, 3]
+        return (K @ (p / max(p[2], 1e-6)))[:2]
+    return (project(T_after) - project(T_before)) / max(frames_apart, 1)
+
+
+def frame_effects(cfg: AppearanceConfig, rng: np.random.Generator, motion_px: np.ndarray) -> tuple[SensorEffects, int]:
+    """(the camera effects of one frame, its JPEG quality); ``motion_px`` [2]: the image motion per frame."""
+    red, blue = rng.uniform(*cfg.white_balance, 2)
+    effects = SensorEffects(exposure=float(2.0 ** rng.uniform(*cfg.exposure_ev)),
+                            white_balance=(float(red), 1.0, float(blue)),
+                            gamma=float(rng.uniform(*cfg.gamma)),
+                            defocus_px=float(rng.uniform(*cfg.defocus_px)),
+                            motion_px=tuple(float(v) for v in np.asarray(motion_px) * rng.uniform(*cfg.shutter)),
+                            shot_noise=float(rng.uniform(*cfg.shot_noise)),
+                            read_noise=float(rng.uniform(*cfg.read_noise)))
+    return effects, int(rng.integers(cfg.jpg_quality[0], cfg.jpg_quality[1] + 1))

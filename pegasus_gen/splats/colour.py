@@ -1,0 +1,33 @@
+"""Linear colour transforms of splats (gains, hue turns, shading), exact on every SH band.
+
+A splat's colour seen from direction d is C0 * DC + 0.5 + sum of the higher bands' terms. A linear map M of
+that colour, c' = M c, is DC' = (M (C0 DC + 0.5) - 0.5) / C0 and, each higher coefficient being a colour,
+coefficient' = M coefficient.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pegasus_gen.splats.cloud import SplatCloud
+from pegasus_gen.splats.sh import C0
+
+
+def transform_colour(cloud: SplatCloud, M: np.ndarray) -> SplatCloud:
+    """The cloud with its colour mapped by ``M``: [3, 3] for every splat, or [N, 3, 3] per splat."""
+    M = np.asarray(M, np.float64)
+    M = np.broadcast_to(M, (len(cloud), 3, 3)) if M.ndim == 2 else M
+    sh = cloud.sh.astype(np.float64)
+    colour = C0 * sh[:, 0] + 0.5
+    out = np.einsum("nij,nkj->nki", M, sh)
+    out[:, 0] = (np.einsum("nij,nj->ni", M, colour) - 0.5) / C0
+    return cloud.replace(sh=out)
+
+
+def hue_rotation(degrees: float) -> np.ndarray:
+    """[3, 3] rotation of RGB colours about the grey axis (1, 1, 1) by ``degrees``: hue turns, grey stays
+    grey, brightness (the mean of R, G, B) is kept."""
+    a = np.radians(degrees)
+    k = np.full(3, 1 / np.sqrt(3))
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K

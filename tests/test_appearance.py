@@ -1,0 +1,128 @@
+"""Appearance and sensor randomisation: exact colour transforms of splats, camera effects with the
+properties of their physics, and randomised datasets that repeat from their seed and keep their labels."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from conftest import random_cloud
+from test_generate import config, dataset_files
+
+from pegasus_gen.dataset.appearance import frame_effects, image_motion
+from pegasus_gen.dataset.config import AppearanceConfig
+from pegasus_gen.dataset.validate import validate
+from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
+from pegasus_gen.render.sensor import SensorEffects, apply_sensor, disc_kernel, streak_kernel
+from pegasus_gen.splats import sh as shlib
+from pegasus_gen.splats.colour import hue_rotation, transform_colour
+
+
+def colour(cloud, dirs):
+    return shlib.evaluate(cloud.sh, dirs) + 0.5
+
+
+def test_a_colour_transform_maps_the_colour_seen_from_every_direction(rng):
+    cloud = random_cloud(rng, 300, sh_degree=3)
+    dirs = rng.normal(size=(len(cloud), 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    M = rng.uniform(-0.5, 1.5, (3, 3))
+    np.testing.assert_allclose(colour(transform_colour(cloud, M), dirs), colour(cloud, dirs) @ M.T, atol=1e-4)
+    per_splat = rng.uniform(0, 1, (len(cloud), 3, 3))
+    want = np.einsum("nij,nj->ni", per_splat, colour(cloud, dirs))
+    np.testing.assert_allclose(colour(transform_colour(cloud, per_splat), dirs), want, atol=1e-4)
+
+
+def test_a_hue_turn_keeps_grey_and_brightness_and_turns_the_hue():
+    for degrees in (-20.0, 7.0, 90.0):
+        R = hue_rotation(degrees)
+        np.testing.assert_allclose(R @ np.full(3, 0.4), np.full(3, 0.4), atol=1e-12)
+        colours = np.random.default_rng(0).uniform(0, 1, (50, 3))
+        np.testing.assert_allclose((colours @ R.T).mean(1), colours.mean(1), atol=1e-12)
+        red = np.array([[[0.7, 0.35, 0.35]]], np.float32)  # unsaturated: no channel leaves 0..1
+        turned = np.clip(red[0] @ R.T, 0, 1)[None].astype(np.float32)
+        hue = cv2.cvtColor(turned, cv2.COLOR_RGB2HSV)[0, 0, 0]  # OpenCV float hue: degrees
+        assert (hue - degrees) % 360 == pytest.approx(0, abs=2) or (degrees - hue) % 360 == pytest.approx(0, abs=2)
+    np.testing.assert_allclose(hue_rotation(30) @ hue_rotation(50), hue_rotation(80), atol=1e-12)
+
+
+def test_a_camera_without_effects_changes_nothing():
+    rgb = np.random.default_rng(0).uniform(0, 1, (40, 50, 3)).astype(np.float32)
+    np.testing.assert_array_equal(apply_sensor(rgb, SensorEffects(), np.random.default_rng(0)), rgb)
+
+
+def test_blur_kernels_keep_the_light_and_have_their_size():
+    for radius in (0.7, 1.5, 3.2):
+        k = disc_kernel(radius)
+        assert k.sum() == pytest.approx(1.0, abs=1e-6)
+        ys, xs = np.nonzero(k > 1e-6)
+        c = k.shape[0] // 2
+        assert np.hypot(xs - c, ys - c).max() <= radius + 1
+    k = streak_kernel(8.0, 0.0)
+    assert k.sum() == pytest.approx(1.0, abs=1e-6)
+    rows = np.nonzero(k.sum(1) > 1e-6)[0]
+    cols = np.nonzero(k.sum(0) > 1e-6)[0]
+    assert len(rows) == 1 and 8 <= len(cols) <= 10  # a horizontal streak 8 px long
+
+
+def test_motion_blur_smears_along_the_motion_only():
+    image = np.zeros((60, 60, 3), np.float32)
+    image[:, 30:] = 1.0  # a vertical edge
+    image[30:, :, 1] = 1.0  # a horizontal edge (green)
+    out = apply_sensor(image, SensorEffects(motion_px=(10.0, 0.0)), np.random.default_rng(0))
+    assert 0.3 < out[10, 30, 0] < 0.7 and 0.3 < out[10, 29, 0] < 0.7  # across the vertical edge: smeared
+    np.testing.assert_allclose(out[25:36, 10, 1], image[25:36, 10, 1], atol=1e-6)  # along the horizontal edge: not
+    assert out[..., 0].mean() == pytest.approx(image[..., 0].mean(), abs=1e-3)
+
+
+def test_noise_has_the_shot_and_read_variance():
+    level = np.full((200, 200, 3), 0.25, np.float32)
+    effects = SensorEffects(shot_noise=0.04, read_noise=0.01)
+    out = apply_sensor(level, effects, np.random.default_rng(0))
+    assert out.std() == pytest.approx(np.sqrt(0.04**2 * 0.25 + 0.01**2), rel=0.03)
+    assert out.mean() == pytest.approx(0.25, abs=1e-3)
+    np.testing.assert_array_equal(out, apply_sensor(level, effects, np.random.default_rng(0)))
+
+
+def test_exposure_white_balance_and_gamma():
+    grey = np.full((4, 4, 3), 0.25, np.float32)
+    out = apply_sensor(grey, SensorEffects(exposure=2.0, white_balance=(1.2, 1.0, 0.8), gamma=2.0),
+                       np.random.default_rng(0))
+    np.testing.assert_allclose(out[0, 0], np.sqrt([0.6, 0.5, 0.4]), atol=1e-6)
+
+
+def test_motion_blur_follows_the_image_motion_of_the_objects():
+    K = intrinsics_from_fov(320, 240, 60)
+    before, after = look_at([0.5, 0.0, 0.5], [0, 0, 0]), look_at([0.5, 0.1, 0.5], [0, 0, 0])
+    motion = image_motion(K, before, after, np.zeros(3), frames_apart=2)
+    assert np.linalg.norm(motion) == 0  # the look-at point stays at the image centre
+    motion = image_motion(K, before, after, np.array([0.0, 0.1, 0.0]), frames_apart=2)
+    assert np.linalg.norm(motion) > 1
+    cfg = AppearanceConfig(enabled=True, shutter=(0.5, 0.5))
+    effects, quality = frame_effects(cfg, np.random.default_rng(0), motion)
+    np.testing.assert_allclose(effects.motion_px, motion * 0.5)
+    assert cfg.jpg_quality[0] <= quality <= cfg.jpg_quality[1]
+
+
+def test_a_randomised_dataset_repeats_from_its_seed_and_keeps_its_labels(library, tmp_path):
+    options = ["scenes=2", "frames_per_scene=3", "appearance.enabled=true", "shadows.enabled=true"]
+    plain = generate_dataset(library, tmp_path / "plain", "scenes=2", "frames_per_scene=3")
+    first = generate_dataset(library, tmp_path / "first", *options)
+    again = generate_dataset(library, tmp_path / "again", *options, "workers=2")
+    got, want = dataset_files(again), dataset_files(first)
+    assert sorted(got) == sorted(want) and [k for k in want if got[k] != want[k]] == []
+    report = validate(first)
+    assert report.ok, report.problems[:3]
+    for scene in ("000000", "000001"):  # the same objects, poses and cameras as without randomisation
+        for name in ("scene_gt.json", "scene_camera.json"):
+            assert json.loads((first / "train_pbr" / scene / name).read_text()) == \
+                json.loads((plain / "train_pbr" / scene / name).read_text())
+    a = cv2.imread(str(first / "train_pbr" / "000000" / "rgb" / "000000.jpg")).astype(float)
+    b = cv2.imread(str(plain / "train_pbr" / "000000" / "rgb" / "000000.jpg")).astype(float)
+    assert np.abs(a - b).mean() > 3  # and it looks different
+
+
+def generate_dataset(library, out, *options):
+    from pegasus_gen.dataset.generate import generate
+
+    return generate(config(library, out, *options))
