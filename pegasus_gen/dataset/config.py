@@ -111,6 +111,20 @@ class AppearanceConfig(_Strict):
     jpg_quality: Annotated[tuple[int, int], _range(1, 100)] = (70, 95)  # per frame (image_format jpg)
 
 
+class DistractorConfig(_Strict):
+    """Procedural clutter dropped with the objects in each scene, never labelled
+    (``pegasus_gen.dataset.distractors``)."""
+
+    count: tuple[int, int] = (0, 0)  # per scene, inclusive range
+    size: Annotated[Range, _range(0.01, 1.0)] = (0.04, 0.14)  # m, the largest extent
+
+    @model_validator(mode="after")
+    def _count(self):
+        if not 0 <= self.count[0] <= self.count[1] <= 20:
+            raise ValueError("count must be (min, max) with 0 <= min <= max <= 20")
+        return self
+
+
 def _demo_objects() -> list[ObjectSpec]:
     return [ObjectSpec(asset=i, count=(0, 1)) for i in range(1, 9)]
 
@@ -131,6 +145,7 @@ class GenerateConfig(_Strict):
     camera: CameraConfig = Field(default_factory=CameraConfig)
     shadows: ShadowConfig = Field(default_factory=ShadowConfig)
     appearance: AppearanceConfig = Field(default_factory=AppearanceConfig)
+    distractors: DistractorConfig = Field(default_factory=DistractorConfig)
     trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     image_format: Literal["jpg", "png"] = "jpg"

@@ -43,6 +43,7 @@ from pegasus_gen.dataset import bop
 from pegasus_gen.dataset.appearance import environment_tint, frame_effects, image_motion, object_colour_transforms
 from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import GenerateConfig
+from pegasus_gen.dataset.distractors import Distractor, make_distractor
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
 from pegasus_gen.dataset.models import eval_model, models_info_entry, write_model_ply
 from pegasus_gen.dataset.physics import DropResult, drop_objects
@@ -61,7 +62,7 @@ from pegasus_gen.splats.colour import transform_colour
 CONFIG_FILE = "pegasus_config.yaml"
 # random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
 # switching shadows or randomisation on changes no object, pose or camera
-SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM = 1, 2, 3
+SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM = 1, 2, 3, 4
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
 RESUMABLE_KEYS = ("output", "library", "device", "workers")
 
@@ -129,13 +130,19 @@ def _choose_objects(cfg: GenerateConfig, assets: Assets, rng: np.random.Generato
 
 @dataclass
 class ScenePlan:
-    """What a scene holds: its environment, the objects dropped (by instance index), the physics
-    result (rest poses, and for dynamic scenes the poses at each camera frame), and the RNG to go on with."""
+    """What a scene holds: its environment, the objects dropped (by instance index: the ``targets`` labelled
+    object assets first, then the distractors), the physics result (rest poses, and for dynamic scenes the
+    poses at each camera frame), and the RNG to go on with."""
 
     environment: Asset
-    objects: list[Asset]
+    objects: list[Asset | Distractor]
+    targets: int
     drop: DropResult
     rng: np.random.Generator
+
+    def labelled(self, indices) -> list[int]:
+        """The instance ``indices`` that are targets (labelled), in order."""
+        return [i for i in indices if i < self.targets]
 
 
 def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
@@ -143,8 +150,11 @@ def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
     rng = np.random.default_rng([cfg.seed, scene_id])
     env = assets.environments[int(rng.integers(len(assets.environments)))]
     objects = _choose_objects(cfg, assets, rng)
-    drop = drop_objects(env, objects, rng, record_fps=cfg.fps if cfg.dynamic else None)
-    return ScenePlan(env, objects, drop, rng)
+    clutter_rng = np.random.default_rng([cfg.seed, scene_id, DISTRACTOR_STREAM])
+    count = int(clutter_rng.integers(cfg.distractors.count[0], cfg.distractors.count[1] + 1))
+    distractors = [make_distractor(cfg.distractors, clutter_rng, k) for k in range(count)]
+    drop = drop_objects(env, objects + distractors, rng, record_fps=cfg.fps if cfg.dynamic else None)
+    return ScenePlan(env, objects + distractors, len(objects), drop, rng)
 
 
 def frame_poses(plan: ScenePlan, im_id: int, dynamic: bool) -> dict[int, np.ndarray]:
@@ -225,11 +235,13 @@ def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | 
 
 def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateConfig, looks: SceneLooks | None,
                   rng: np.random.Generator) -> tuple[SplatCloud, list[SplatCloud]]:
-    """The environment's splats and each kept object's splats placed at ``poses`` (labelled 1.. in order),
-    recoloured by ``looks`` and shaded when ``cfg.shadows`` asks for it (``rng``: the shadow rays' spin)."""
+    """The environment's splats and each kept object's splats placed at ``poses`` (targets labelled 1.. in
+    order, distractors 0 as the environment), recoloured by ``looks`` and shaded when ``cfg.shadows`` asks for
+    it (``rng``: the shadow rays' spin)."""
     kept = sorted(poses)
+    labels = {i: n + 1 for n, i in enumerate(plan.labelled(kept))}
     environment = plan.environment.splats
-    placed = [plan.objects[i].splats.transformed(poses[i]).with_label(n + 1) for n, i in enumerate(kept)]
+    placed = [plan.objects[i].splats.transformed(poses[i]).with_label(labels.get(i, 0)) for i in kept]
     if looks is not None:
         environment = transform_colour(environment, looks.environment)
         placed = [transform_colour(cloud, M) for cloud, M in zip(placed, looks.objects)]
@@ -278,7 +290,8 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     plan = plan_scene(scene_id, cfg, assets)
     env, objects, drop = plan.environment, plan.objects, plan.drop
     kept = sorted(drop.poses)
-    if not kept:
+    labelled = plan.labelled(kept)
+    if not labelled:
         raise PegasusError(f"scene {scene_id}: every object left the support of {env.name}")
     K = camera_matrix(cfg)
     cams = camera_trajectory(plan, cfg, K)
@@ -288,7 +301,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     K_canvas[1, 2] += H
     for sub in ("rgb", "depth", "mask", "mask_visib"):
         (scene_dir / sub).mkdir(parents=True)
-    models = {a.manifest.obj_id: MeshRaycaster(a.surface) for a in objects}
+    models = {objects[i].manifest.obj_id: MeshRaycaster(objects[i].surface) for i in labelled}
     scene_gt, scene_camera, scene_info = {}, {}, {}
     coco_images, coco_instances = [], []
     looks = scene_looks(cfg, scene_id, len(kept))
@@ -309,7 +322,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             scene_camera[str(im_id)] = bop.camera_entry(K, T_cam_world, cfg.depth_scale)
             coco_images.append({"id": im_id, "file_name": rgb_name, "width": W, "height": H})
             gts, infos, dope_objects = [], [], []
-            for gt_idx, i in enumerate(kept):
+            for gt_idx, i in enumerate(labelled):
                 asset = objects[i]
                 T_cam_obj = T_cam_world @ poses[i]
                 canvas = object_depth_canvas(models[asset.manifest.obj_id], asset.surface.vertices, T_cam_obj,

@@ -12,6 +12,7 @@ import numpy as np
 import pybullet as pb
 
 from pegasus_gen.assets.library import Asset
+from pegasus_gen.dataset.distractors import Distractor
 from pegasus_gen.errors import PegasusError
 
 
@@ -83,13 +84,22 @@ class World:
     def __exit__(self, *exc):
         self.close()
 
-    def add(self, index: int, asset: Asset, T_world_obj: np.ndarray) -> None:
-        """Place object ``index`` with its object frame at T_world_obj [4, 4]."""
+    def add(self, index: int, asset: Asset | Distractor, T_world_obj: np.ndarray) -> None:
+        """Place object ``index`` (an asset, from its URDF, or a distractor, a convex body built from its
+        mesh) with its object frame at T_world_obj [4, 4]."""
         from scipy.spatial.transform import Rotation
 
         quat = Rotation.from_matrix(T_world_obj[:3, :3]).as_quat()
-        body = pb.loadURDF(str(asset.urdf_path), T_world_obj[:3, 3].tolist(), quat.tolist(),
-                           physicsClientId=self.client)
+        if isinstance(asset, Distractor):
+            shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=np.asarray(asset.mesh.vertices).tolist(),
+                                            physicsClientId=self.client)
+            body = pb.createMultiBody(asset.mass, shape, -1, T_world_obj[:3, 3].tolist(), quat.tolist(),
+                                      physicsClientId=self.client)
+            pb.changeDynamics(body, -1, lateralFriction=0.8, rollingFriction=0.002, spinningFriction=0.002,
+                              restitution=0.05, physicsClientId=self.client)
+        else:
+            body = pb.loadURDF(str(asset.urdf_path), T_world_obj[:3, 3].tolist(), quat.tolist(),
+                               physicsClientId=self.client)
         info = pb.getDynamicsInfo(body, -1, physicsClientId=self.client)
         self.bodies[index] = body
         self._com_offsets[index] = _matrix(info[3], info[4])  # T_obj_com from the URDF inertial origin
@@ -117,7 +127,7 @@ class World:
         pb.stepSimulation(physicsClientId=self.client)
 
 
-def spawn_poses(environment: Asset, objects: list[Asset], rng: np.random.Generator,
+def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.random.Generator,
                 params: PhysicsParams = PhysicsParams()) -> list[np.ndarray]:
     """Non-overlapping T_world_obj above the environment's drop region, uniformly random orientations.
 
@@ -145,7 +155,7 @@ def spawn_poses(environment: Asset, objects: list[Asset], rng: np.random.Generat
     return poses
 
 
-def drop_objects(environment: Asset, objects: list[Asset], rng: np.random.Generator,
+def drop_objects(environment: Asset, objects: list[Asset | Distractor], rng: np.random.Generator,
                  params: PhysicsParams = PhysicsParams(), record_fps: float | None = None) -> DropResult:
     """Drop ``objects`` onto ``environment`` and simulate until all rest (or ``max_time``).
 

@@ -1,0 +1,80 @@
+"""Distractors: procedural clutter (boxes, cylinders, spheres with random textures) dropped with the objects.
+
+They are physical (they collide, fall, occlude and cast shadows) and rendered, but never labelled: they
+have no model in ``models/``, so the dataset's scene_gt, gt_info, COCO and DOPE files leave them out
+(BOP's obj_ids must refer to models, and a network trained on the dataset is to learn that they are not
+targets). What they hide of a target is still accounted for: the target's ``mask_visib`` and
+``visib_fract`` come from the rendered depth, which they are in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from pegasus_gen.dataset.config import DistractorConfig
+from pegasus_gen.splats.cloud import SplatCloud
+from pegasus_gen.splats.surface import surface_splats
+
+SPACING = 0.004  # m between neighbouring splats
+DENSITY = (200.0, 900.0)  # kg/m^3
+
+
+@dataclass
+class Distractor:
+    """A clutter object: ``splats`` and ``surface`` (its exact convex shape) in its frame (origin at the centre
+    of mass, which for these symmetric solids is the bounding-box centre); ``mass`` in kg."""
+
+    name: str
+    splats: SplatCloud
+    surface: trimesh.Trimesh
+    mass: float
+
+    @property
+    def mesh(self) -> trimesh.Trimesh:
+        """The collision shape (the surface itself: every distractor is convex)."""
+        return self.surface
+
+
+def random_texture(rng: np.random.Generator):
+    """A texture function points [N, 3] (m, object frame) -> rgb [N, 3] in 0..1: stripes, checks or blobs in
+    2-3 random colours at a random scale."""
+    colours = rng.uniform(0.05, 0.95, (int(rng.integers(2, 4)), 3))
+    period = rng.uniform(0.008, 0.04)
+    kind = int(rng.integers(3))
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    phases = rng.uniform(0, 2 * np.pi, 3)
+
+    def texture(points: np.ndarray) -> np.ndarray:
+        if kind == 0:  # stripes
+            index = np.floor(points @ direction / period)
+        elif kind == 1:  # checks
+            index = np.floor(points / period).sum(axis=1)
+        else:  # blobs
+            field = np.sin(points / period + phases).sum(axis=1)
+            index = np.floor((field + 3) / 6 * len(colours) * 1.999)
+        return colours[index.astype(np.int64) % len(colours)]
+
+    return texture
+
+
+def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int) -> Distractor:
+    """A random box, cylinder or sphere whose largest extent is drawn from ``cfg.size`` (m), textured."""
+    size = rng.uniform(*cfg.size)
+    kind = ("box", "cylinder", "sphere")[int(rng.integers(3))]
+    if kind == "box":
+        extents = rng.uniform(0.3, 1.0, 3)
+        surface = trimesh.creation.box(extents=size * extents / extents.max())
+    elif kind == "cylinder":
+        radius, height = size / 2 * rng.uniform(0.3, 1.0), size * rng.uniform(0.3, 1.0)
+        surface = trimesh.creation.cylinder(radius=radius, height=height, sections=32)
+    else:
+        surface = trimesh.creation.icosphere(subdivisions=3, radius=size / 2 * rng.uniform(0.4, 1.0))
+    count = max(200, int(surface.area / SPACING**2))
+    points, faces = trimesh.sample.sample_surface(surface, count, seed=int(rng.integers(2**31)))
+    normals = surface.face_normals[faces]
+    splats = surface_splats(points, normals, random_texture(rng)(points), SPACING, rng)
+    return Distractor(f"distractor_{index}_{kind}", splats, surface, float(surface.volume * rng.uniform(*DENSITY)))
