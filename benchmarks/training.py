@@ -1,11 +1,12 @@
 """DOPE training recipes on a CPU, measured on a fixed held-out set: what ``docs/TRAINING.md`` reports.
 
 Usage: python benchmarks/training.py --work out/bench-training [--tag NAME] [--recipe demo|dope] [--frames 960]
-       [--camera-fx 554] [--train key=value ...]
+       [--camera-fx 554] [--train key=value ...] [--generate key=value ...]
 
 Each run: the demo library; a training dataset of the demo's target object (noodle_cup_red, 1-2 per scene,
 0-1 of each distractor) on wooden_table and tiled_floor (``--frames`` frames at 320x240, camera fx
-``--camera-fx``; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
+``--camera-fx``, with the ``--generate key=value`` overrides, e.g. shadows, appearance randomisation or
+distractors; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
 left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's camera: 60 degree field of
 view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the recipe (``demo``: the demo's, from
 ``nodes.demo.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields given as
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import os
 import platform
 import time
@@ -62,6 +64,8 @@ def main() -> None:
     parser.add_argument("--distance", default="[0.45, 0.85]", help="training camera distance range, m")
     parser.add_argument("--elevation", default="[30, 70]", help="training camera elevation range, degrees")
     parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields as key=value")
+    parser.add_argument("--generate", nargs="*", default=[],
+                        help="training-data generate overrides as key=value (e.g. shadows.enabled=true)")
     args = parser.parse_args()
     work = Path(args.work)
     lib = AssetLibrary(None)
@@ -70,8 +74,10 @@ def main() -> None:
     train_overrides = [f"library={lib.root}", "environments=[wooden_table, tiled_floor]", f"objects={OBJECTS}",
                        f"scenes={args.frames // 12}", "frames_per_scene=12", f"camera.width={args.width}",
                        f"camera.height={args.height}", *camera, f"trajectory.distance={args.distance}",
-                       f"trajectory.elevation_deg={args.elevation}"]
+                       f"trajectory.elevation_deg={args.elevation}", *args.generate]
     name = f"train_{args.frames}_{args.width}x{args.height}_fx{args.camera_fx:g}_d{args.distance}_e{args.elevation}"
+    if args.generate:
+        name += "_" + hashlib.sha256(" ".join(args.generate).encode()).hexdigest()[:8]
     t0 = time.monotonic()
     data = dataset(work / "datasets" / name.replace(" ", "").replace(",", "-"), train_overrides)
     held_out = dataset(work / "datasets" / "held_out", held_out_overrides(lib.root, TARGET, frames=15))
@@ -92,7 +98,7 @@ def main() -> None:
     write_report(report, out / "eval_held_out")
     dope, refined = report["ADD-S"], report["refined"]["ADD-S"]
     row = {"tag": args.tag, "recipe": args.recipe, "frames": args.frames, "camera_fx": args.camera_fx,
-           "train": " ".join(args.train),
+           "generate": " ".join(args.generate), "train": " ".join(args.train),
            "train_min": round(t_train / 60, 1), "images_per_s": round(rate, 1),
            "final_loss": round(rows[-1]["loss"], 5),
            "instances": report["instances"], "misses": report["misses"], "false_positives": report["false_positives"],

@@ -18,6 +18,8 @@ def cmd_generate(args) -> int:
         overrides.append(f"workers={args.workers}")
     if args.out is not None:
         overrides.append(f"output={args.out}")
+    if args.ray is not None:
+        overrides.append(f"ray={args.ray}")
     cfg = load_config(config_file, overrides)
     t0 = time.perf_counter()
     out = generate(cfg, resume=args.resume)
@@ -54,6 +56,10 @@ def add_commands(sub) -> None:
                    help="an optional YAML config first, then overrides such as scenes=10 camera.width=320")
     p.add_argument("--out", help="output folder (same as output=...)")
     p.add_argument("--workers", type=int, help="processes rendering scenes in parallel (same as workers=...)")
+    p.add_argument("--ray", metavar="auto|local|ADDRESS",
+                   help="run scenes as Ray tasks: on the running cluster (auto), a private local instance with "
+                        "--workers CPUs (local) or the cluster at ADDRESS; the output must be on storage every node "
+                        "mounts (same as ray=...)")
     p.add_argument("--resume", action="store_true",
                    help="continue the dataset in the output folder (made with the same config)")
     p.set_defaults(func=cmd_generate)

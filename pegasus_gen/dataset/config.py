@@ -159,6 +159,9 @@ class GenerateConfig(_Strict):
     dataset_name: str = Field(default="pegasus", pattern=r"^[A-Za-z0-9_-]+$")
     seed: int = 0
     workers: int = Field(default=1, ge=1, le=256)
+    # run scenes as Ray tasks: "auto" (the running cluster), "local" (a private instance with `workers` CPUs)
+    # or a cluster address (HEAD:6379, ray://HEAD:10001); None: worker processes on this machine
+    ray: Optional[str] = Field(default=None, min_length=1)
 
 
 def _set(tree: dict, dotted: str, value) -> None:

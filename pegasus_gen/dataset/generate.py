@@ -46,6 +46,7 @@ from pegasus_gen.dataset.config import GenerateConfig
 from pegasus_gen.dataset.distractors import Distractor, make_distractor
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
 from pegasus_gen.dataset.models import eval_model, models_info_entry, write_model_ply
+from pegasus_gen.dataset.on_ray import build_on_ray
 from pegasus_gen.dataset.physics import DropResult, drop_objects
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
@@ -64,7 +65,7 @@ CONFIG_FILE = "pegasus_config.yaml"
 # switching shadows or randomisation on changes no object, pose or camera
 SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM = 1, 2, 3, 4
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
-RESUMABLE_KEYS = ("output", "library", "device", "workers")
+RESUMABLE_KEYS = ("output", "library", "device", "workers", "ray")
 
 
 def camera_matrix(cfg: GenerateConfig) -> np.ndarray:
@@ -486,7 +487,9 @@ def _generate(out: Path, cfg: GenerateConfig, assets: Assets) -> Path:
     write_models(out, assets, cfg)
     todo = [s for s in range(cfg.scenes) if not (split / f"{s:06d}").is_dir()]
     with tqdm(total=len(todo) * cfg.frames_per_scene, desc="generate", unit="frame", smoothing=0.1) as bar:
-        if cfg.workers > 1 and len(todo) > 1:
+        if cfg.ray is not None:
+            build_on_ray(build_scene, split, todo, cfg, assets, bar)
+        elif cfg.workers > 1 and len(todo) > 1:
             _build_in_processes(split, todo, cfg, bar)
         else:
             for scene_id in todo:
