@@ -50,7 +50,10 @@ def _connect(ray, address: str, cpus: int) -> bool:
 
 
 def _scene_task(build: Callable, split: str, scene_id: int, cfg: GenerateConfig, assets) -> int:
-    build(Path(split), scene_id, cfg, assets)
+    try:
+        build(Path(split), scene_id, cfg, assets)
+    except Exception as exc:  # one line in Ray's retry notices, not the whole traceback
+        raise RuntimeError(f"scene {scene_id}: {type(exc).__name__}: {exc}") from None
     return scene_id
 
 
@@ -76,7 +79,7 @@ def build_on_ray(build: Callable, split: Path, todo: list[int], cfg: GenerateCon
         if failed:
             first = min(failed)
             names = ", ".join(map(str, sorted(failed)))
-            raise PegasusError(f"scenes {names} failed {RETRIES + 1} times (scene {first}: {failed[first]}); "
+            raise PegasusError(f"scenes {names} failed {RETRIES + 1} times ({failed[first]}); "
                                "the others are written: --resume retries the failed ones")
     finally:
         if started:
