@@ -4,6 +4,8 @@ killed or failing task leaves."""
 import os
 import shutil
 import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -89,3 +91,12 @@ def test_a_scene_failing_every_try_is_reported_after_the_others_are_written(libr
     (split / "000002").unlink()
     generate(options(library, out, "ray=auto"), resume=True)
     same_files(out, one_process)
+
+
+def test_an_unreachable_cluster_is_one_line_and_touches_nothing(library, tmp_path):
+    out = tmp_path / "ds"
+    result = subprocess.run([sys.executable, "-m", "pegasus_gen.cli", "generate", f"library={library.root}",
+                             "scenes=1", "--out", str(out), "--ray", "127.0.0.1:9"], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "--ray 127.0.0.1:9: cannot reach a Ray cluster" in result.stderr and "Traceback" not in result.stderr
+    assert not out.exists()

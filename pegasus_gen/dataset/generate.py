@@ -46,7 +46,7 @@ from pegasus_gen.dataset.config import GenerateConfig
 from pegasus_gen.dataset.distractors import Distractor, make_distractor
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
 from pegasus_gen.dataset.models import eval_model, models_info_entry, write_model_ply
-from pegasus_gen.dataset.on_ray import build_on_ray
+from pegasus_gen.dataset.on_ray import build_on_ray, ray_session
 from pegasus_gen.dataset.physics import DropResult, drop_objects
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
@@ -476,7 +476,7 @@ def generate(cfg: GenerateConfig, resume: bool = False) -> Path:
     already in a matching dataset are kept and only the missing ones are made."""
     assets = load_assets(cfg)  # all checks before the output folder is touched
     out = Path(cfg.output)
-    with FolderLock(out, "pegasus generate"):
+    with ray_session(cfg.ray, cfg.workers), FolderLock(out, "pegasus generate"):
         prepare_output(out, cfg, assets, resume)
         return _generate(out, cfg, assets)
 

@@ -16,6 +16,8 @@ only for the driver.
 
 from __future__ import annotations
 
+import contextlib
+import socket
 from pathlib import Path
 from typing import Callable
 
@@ -35,18 +37,47 @@ def _ray():
     return ray
 
 
-def _connect(ray, address: str, cpus: int) -> bool:
-    """Join or start the Ray instance of ``address``; True when this call started it (so it ends it)."""
-    if ray.is_initialized():
-        return False
+PROBE_TIMEOUT_S = 5.0
+
+
+def _probe(address: str) -> None:
+    """A TCP connection to a cluster ``address`` (HOST:PORT, or ray://HOST:PORT); one clear error when it
+    fails, before Ray's own client retries for minutes."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise PegasusError(f"--ray {address}: expected auto, local, HOST:PORT or ray://HOST:PORT")
     try:
-        if address == "local":
-            ray.init(num_cpus=cpus, include_dashboard=False, log_to_driver=False)
-            return True
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        raise PegasusError(f"--ray {address}: cannot reach a Ray cluster ({str(exc).splitlines()[0]})") from None
-    return False
+        socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_TIMEOUT_S).close()
+    except OSError as exc:
+        raise PegasusError(f"--ray {address}: cannot reach a Ray cluster ({exc.strerror or exc})") from None
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None, cpus: int):
+    """Joined to (or, for ``local``, running) the Ray instance of ``address`` inside the block; nothing for
+    None. An instance this call started is shut down at the end. Connects before anything is written, so an
+    unreachable cluster leaves the output untouched."""
+    if address is None:
+        yield
+        return
+    ray = _ray()
+    started = False
+    if not ray.is_initialized():
+        try:
+            if address == "local":
+                ray.init(num_cpus=cpus, include_dashboard=False, log_to_driver=False)
+                started = True
+            else:
+                if address != "auto":
+                    _probe(address)
+                ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            raise PegasusError(f"--ray {address}: cannot reach a Ray cluster ({str(exc).splitlines()[0]})") from None
+    try:
+        yield
+    finally:
+        if started:
+            ray.shutdown()
 
 
 def _scene_task(build: Callable, split: str, scene_id: int, cfg: GenerateConfig, assets) -> int:
@@ -59,28 +90,23 @@ def _scene_task(build: Callable, split: str, scene_id: int, cfg: GenerateConfig,
 
 def build_on_ray(build: Callable, split: Path, todo: list[int], cfg: GenerateConfig, assets, bar: tqdm) -> None:
     """Build each of the ``todo`` scenes of ``split`` with ``build(split, scene_id, cfg, assets)`` (generate's
-    build_scene) as a Ray task on the instance ``cfg.ray`` names; ``bar`` advances by a scene's frames when its
-    task completes. Raises PegasusError naming the scenes that failed every try."""
+    build_scene) as a Ray task, inside a ``ray_session``; ``bar`` advances by a scene's frames when its task
+    completes. Raises PegasusError naming the scenes that failed every try."""
     ray = _ray()
-    started = _connect(ray, cfg.ray, cfg.workers)
-    try:
-        task = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_scene_task)
-        shared = ray.put(assets)
-        pending = {task.remote(build, str(split), s, cfg, shared): s for s in todo}
-        failed = {}
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            scene_id = pending.pop(done[0])
-            try:
-                ray.get(done[0])
-                bar.update(cfg.frames_per_scene)
-            except Exception as exc:  # a task's own error, or its worker lost, after every retry
-                failed[scene_id] = str(getattr(exc, "cause", None) or exc).strip().splitlines()[-1]
-        if failed:
-            first = min(failed)
-            names = ", ".join(map(str, sorted(failed)))
-            raise PegasusError(f"scenes {names} failed {RETRIES + 1} times ({failed[first]}); "
-                               "the others are written: --resume retries the failed ones")
-    finally:
-        if started:
-            ray.shutdown()
+    task = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_scene_task)
+    shared = ray.put(assets)
+    pending = {task.remote(build, str(split), s, cfg, shared): s for s in todo}
+    failed = {}
+    while pending:
+        done, _ = ray.wait(list(pending), num_returns=1)
+        scene_id = pending.pop(done[0])
+        try:
+            ray.get(done[0])
+            bar.update(cfg.frames_per_scene)
+        except Exception as exc:  # a task's own error, or its worker lost, after every retry
+            failed[scene_id] = str(getattr(exc, "cause", None) or exc).strip().splitlines()[-1]
+    if failed:
+        first = min(failed)
+        names = ", ".join(map(str, sorted(failed)))
+        raise PegasusError(f"scenes {names} failed {RETRIES + 1} times ({failed[first]}); "
+                           "the others are written: --resume retries the failed ones")
