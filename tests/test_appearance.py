@@ -15,7 +15,8 @@ from pegasus_gen.dataset.validate import validate
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.sensor import SensorEffects, apply_sensor, disc_kernel, streak_kernel
 from pegasus_gen.splats import sh as shlib
-from pegasus_gen.splats.colour import hue_rotation, transform_colour
+from pegasus_gen.splats.colour import blend_colour, hue_rotation, transform_colour
+from pegasus_gen.splats.procedural import random_texture
 
 
 def colour(cloud, dirs):
@@ -31,6 +32,17 @@ def test_a_colour_transform_maps_the_colour_seen_from_every_direction(rng):
     per_splat = rng.uniform(0, 1, (len(cloud), 3, 3))
     want = np.einsum("nij,nj->ni", per_splat, colour(cloud, dirs))
     np.testing.assert_allclose(colour(transform_colour(cloud, per_splat), dirs), want, atol=1e-4)
+
+
+def test_a_blend_moves_the_colour_towards_the_texture_from_every_direction(rng):
+    cloud = random_cloud(rng, 300, sh_degree=3)
+    dirs = rng.normal(size=(len(cloud), 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    texture = random_texture(rng, (0.02, 0.1))(cloud.means)
+    assert len(np.unique(texture, axis=0)) >= 2 and texture.min() >= 0 and texture.max() <= 1
+    for weight in (0.0, 0.3, 1.0):
+        np.testing.assert_allclose(colour(blend_colour(cloud, texture, weight), dirs),
+                                   (1 - weight) * colour(cloud, dirs) + weight * texture, atol=1e-4)
 
 
 def test_a_hue_turn_keeps_grey_and_brightness_and_turns_the_hue():
@@ -105,7 +117,8 @@ def test_motion_blur_follows_the_image_motion_of_the_objects():
 
 
 def test_a_randomised_dataset_repeats_from_its_seed_and_keeps_its_labels(library, tmp_path):
-    options = ["scenes=2", "frames_per_scene=3", "appearance.enabled=true", "shadows.enabled=true"]
+    options = ["scenes=2", "frames_per_scene=3", "appearance.enabled=true", "appearance.retexture=1",
+               "shadows.enabled=true"]
     plain = generate_dataset(library, tmp_path / "plain", "scenes=2", "frames_per_scene=3")
     first = generate_dataset(library, tmp_path / "first", *options)
     again = generate_dataset(library, tmp_path / "again", *options, "workers=2")

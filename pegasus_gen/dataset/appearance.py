@@ -1,7 +1,8 @@
 """Appearance and sensor randomisation of a scene, drawn from the config's ranges and the scene's seed.
 
-Per scene: a colour transform for each object instance (per-channel gain, then a hue turn) and a tint of the
-environment (per-channel gain), applied to the splats. Per frame: the camera (exposure, white balance,
+Per scene: a colour transform for each object instance (per-channel gain, then a hue turn), a tint of the
+environment (per-channel gain) and, for a share of scenes, a random procedural texture painted over the
+environment, applied to the splats. Per frame: the camera (exposure, white balance,
 gamma, shot and read noise, defocus, motion blur along the image motion of the objects' centre, JPEG
 quality), applied to the rendered image. None of it moves anything: the labels are those of the scene
 without it.
@@ -14,6 +15,7 @@ import numpy as np
 from pegasus_gen.dataset.config import AppearanceConfig
 from pegasus_gen.render.sensor import SensorEffects
 from pegasus_gen.splats.colour import hue_rotation
+from pegasus_gen.splats.procedural import random_texture
 
 
 def object_colour_transforms(cfg: AppearanceConfig, count: int, rng: np.random.Generator) -> list[np.ndarray]:
@@ -25,6 +27,14 @@ def object_colour_transforms(cfg: AppearanceConfig, count: int, rng: np.random.G
 def environment_tint(cfg: AppearanceConfig, rng: np.random.Generator) -> np.ndarray:
     """[3, 3] colour transform of the environment: per-channel gains."""
     return np.diag(rng.uniform(*cfg.environment_tint, 3))
+
+
+def environment_texture(cfg: AppearanceConfig, rng: np.random.Generator):
+    """(texture function points [N, 3] -> rgb [N, 3], blend weight) repainting the environment, for a share
+    ``cfg.retexture`` of scenes; None for the others."""
+    repaint = rng.uniform() < cfg.retexture
+    texture, weight = random_texture(rng, cfg.texture_period), float(rng.uniform(*cfg.texture_weight))
+    return (texture, weight) if repaint else None
 
 
 def image_motion(K: np.ndarray, T_before: np.ndarray, T_after: np.ndarray, point: np.ndarray,

@@ -100,6 +100,11 @@ class AppearanceConfig(_Strict):
     object_gain: Annotated[Range, _range(0.1, 10.0)] = (0.85, 1.15)  # per instance and channel
     object_hue_deg: float = Field(default=8.0, ge=0.0, le=180.0)  # per instance, hue turned by up to this
     environment_tint: Annotated[Range, _range(0.1, 10.0)] = (0.9, 1.1)  # per scene and channel
+    # share of scenes whose environment is repainted with a random procedural texture (stripes, checks or
+    # blobs, features of texture_period m), blended over the scan's colour by a weight from texture_weight
+    retexture: float = Field(default=0.0, ge=0.0, le=1.0)
+    texture_period: Annotated[Range, _range(0.001, 10.0)] = (0.02, 0.15)
+    texture_weight: Annotated[Range, _range(0.0, 1.0)] = (0.5, 1.0)
     exposure_ev: Annotated[Range, _range(-10.0, 10.0)] = (-0.6, 0.4)  # per frame: gain 2^ev
     white_balance: Annotated[Range, _range(0.1, 10.0)] = (0.9, 1.1)  # per frame, red and blue gains (green 1)
     gamma: Annotated[Range, _range(0.1, 10.0)] = (0.85, 1.2)  # per frame: out = in^(1/gamma)

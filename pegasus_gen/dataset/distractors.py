@@ -16,9 +16,11 @@ import trimesh
 
 from pegasus_gen.dataset.config import DistractorConfig
 from pegasus_gen.splats.cloud import SplatCloud
+from pegasus_gen.splats.procedural import random_texture
 from pegasus_gen.splats.surface import surface_splats
 
 SPACING = 0.004  # m between neighbouring splats
+TEXTURE_PERIOD = (0.008, 0.04)  # m
 DENSITY = (200.0, 900.0)  # kg/m^3
 
 
@@ -38,29 +40,6 @@ class Distractor:
         return self.surface
 
 
-def random_texture(rng: np.random.Generator):
-    """A texture function points [N, 3] (m, object frame) -> rgb [N, 3] in 0..1: stripes, checks or blobs in
-    2-3 random colours at a random scale."""
-    colours = rng.uniform(0.05, 0.95, (int(rng.integers(2, 4)), 3))
-    period = rng.uniform(0.008, 0.04)
-    kind = int(rng.integers(3))
-    direction = rng.normal(size=3)
-    direction /= np.linalg.norm(direction)
-    phases = rng.uniform(0, 2 * np.pi, 3)
-
-    def texture(points: np.ndarray) -> np.ndarray:
-        if kind == 0:  # stripes
-            index = np.floor(points @ direction / period)
-        elif kind == 1:  # checks
-            index = np.floor(points / period).sum(axis=1)
-        else:  # blobs
-            field = np.sin(points / period + phases).sum(axis=1)
-            index = np.floor((field + 3) / 6 * len(colours) * 1.999)
-        return colours[index.astype(np.int64) % len(colours)]
-
-    return texture
-
-
 def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int) -> Distractor:
     """A random box, cylinder or sphere whose largest extent is drawn from ``cfg.size`` (m), textured."""
     size = rng.uniform(*cfg.size)
@@ -76,5 +55,5 @@ def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int)
     count = max(200, int(surface.area / SPACING**2))
     points, faces = trimesh.sample.sample_surface(surface, count, seed=int(rng.integers(2**31)))
     normals = surface.face_normals[faces]
-    splats = surface_splats(points, normals, random_texture(rng)(points), SPACING, rng)
+    splats = surface_splats(points, normals, random_texture(rng, TEXTURE_PERIOD)(points), SPACING, rng)
     return Distractor(f"distractor_{index}_{kind}", splats, surface, float(surface.volume * rng.uniform(*DENSITY)))

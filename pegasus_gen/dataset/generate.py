@@ -40,7 +40,13 @@ from tqdm import tqdm
 
 from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.dataset import bop
-from pegasus_gen.dataset.appearance import environment_tint, frame_effects, image_motion, object_colour_transforms
+from pegasus_gen.dataset.appearance import (
+    environment_texture,
+    environment_tint,
+    frame_effects,
+    image_motion,
+    object_colour_transforms,
+)
 from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import GenerateConfig
 from pegasus_gen.dataset.distractors import Distractor, make_distractor
@@ -58,7 +64,7 @@ from pegasus_gen.render.renderer import render
 from pegasus_gen.render.sensor import apply_sensor
 from pegasus_gen.render.shadows import ShadowParams, contact_shadows
 from pegasus_gen.splats.cloud import SplatCloud
-from pegasus_gen.splats.colour import transform_colour
+from pegasus_gen.splats.colour import blend_colour, transform_colour
 
 CONFIG_FILE = "pegasus_config.yaml"
 # random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
@@ -220,10 +226,12 @@ def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> li
 
 @dataclass
 class SceneLooks:
-    """A scene's colour transforms [3, 3]: the environment's tint and each kept object instance's (in order)."""
+    """A scene's colour transforms [3, 3] (the environment's tint and each kept object instance's, in order) and
+    the texture painted over its environment, if any: (points [N, 3] -> rgb [N, 3], blend weight)."""
 
     environment: np.ndarray
     objects: list[np.ndarray]
+    texture: tuple[Callable, float] | None
 
 
 def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | None:
@@ -231,7 +239,8 @@ def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | 
     if not cfg.appearance.enabled:
         return None
     rng = np.random.default_rng([cfg.seed, scene_id, APPEARANCE_STREAM])
-    return SceneLooks(environment_tint(cfg.appearance, rng), object_colour_transforms(cfg.appearance, count, rng))
+    return SceneLooks(environment_tint(cfg.appearance, rng), object_colour_transforms(cfg.appearance, count, rng),
+                      environment_texture(cfg.appearance, rng))
 
 
 def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateConfig, looks: SceneLooks | None,
@@ -244,6 +253,9 @@ def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateCo
     environment = plan.environment.splats
     placed = [plan.objects[i].splats.transformed(poses[i]).with_label(labels.get(i, 0)) for i in kept]
     if looks is not None:
+        if looks.texture is not None:
+            texture, weight = looks.texture
+            environment = blend_colour(environment, texture(environment.means), weight)
         environment = transform_colour(environment, looks.environment)
         placed = [transform_colour(cloud, M) for cloud, M in zip(placed, looks.objects)]
     if not cfg.shadows.enabled:

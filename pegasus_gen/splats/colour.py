@@ -1,4 +1,4 @@
-"""Linear colour transforms of splats (gains, hue turns, shading), exact on every SH band.
+"""Colour transforms of splats (gains, hue turns, shading, blends towards a texture), exact on every SH band.
 
 A splat's colour seen from direction d is C0 * DC + 0.5 + sum of the higher bands' terms. A linear map M of
 that colour, c' = M c, is DC' = (M (C0 DC + 0.5) - 0.5) / C0 and, each higher coefficient being a colour,
@@ -31,3 +31,13 @@ def hue_rotation(degrees: float) -> np.ndarray:
     k = np.full(3, 1 / np.sqrt(3))
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+
+
+def blend_colour(cloud: SplatCloud, rgb: np.ndarray, weight: float) -> SplatCloud:
+    """The cloud with its colour blended towards ``rgb`` [N, 3] (0..1, view-independent) by ``weight`` (0: as
+    it was, 1: ``rgb`` seen from every direction): c' = (1 - w) c + w rgb on every band."""
+    sh = cloud.sh.astype(np.float64)
+    colour = (1.0 - weight) * (C0 * sh[:, 0] + 0.5) + weight * np.asarray(rgb, np.float64)
+    sh[:, 1:] *= 1.0 - weight
+    sh[:, 0] = (colour - 0.5) / C0
+    return cloud.replace(sh=sh)

@@ -77,6 +77,29 @@ def box(size, n: int, colors_per_face, rng: np.random.Generator, **kwargs) -> Sp
     return surface_splats(np.concatenate(pts), np.concatenate(nrm), np.concatenate(col), spacing, rng, **kwargs)
 
 
+def random_texture(rng: np.random.Generator, period: tuple[float, float]):
+    """A texture function points [N, 3] (m) -> rgb [N, 3] in 0..1: stripes, checks or blobs in 2-3 random
+    colours, with a feature size drawn from ``period`` (m)."""
+    colours = rng.uniform(0.05, 0.95, (int(rng.integers(2, 4)), 3))
+    period = rng.uniform(*period)
+    kind = int(rng.integers(3))
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    phases = rng.uniform(0, 2 * np.pi, 3)
+
+    def texture(points: np.ndarray) -> np.ndarray:
+        if kind == 0:  # stripes
+            index = np.floor(points @ direction / period)
+        elif kind == 1:  # checks
+            index = np.floor(points / period).sum(axis=1)
+        else:  # blobs
+            field = np.sin(points / period + phases).sum(axis=1)
+            index = np.floor((field + 3) / 6 * len(colours) * 1.999)
+        return colours[index.astype(np.int64) % len(colours)]
+
+    return texture
+
+
 def striped_label(colors) -> callable:
     """A cup label: horizontal colour bands plus a lettering-like pattern of dark ticks around the cup."""
     colors = np.asarray(colors, dtype=np.float64)
