@@ -40,13 +40,14 @@ def test_auto_picks_cuda_when_it_works():
 def test_contact_shadows_darken_alike_on_both_backends():
     import trimesh
 
-    from pegasus_gen.render.shadows import ShadowParams, contact_shadows
+    from pegasus_gen.dataset.config import ShadowConfig
+    from pegasus_gen.render.shadows import contact_shadows
 
     env, objects, poses = synthetic.tabletop_scene(100_000, np.random.default_rng(2), sh_degree=3)
     placed = [o.transformed(T) for o, T in zip(objects, poses)]
     meshes = [trimesh.creation.box(bounds=[o.means.min(0), o.means.max(0)]).apply_transform(T)
               for o, T in zip(objects, poses)]
-    shaded_env, shaded = contact_shadows(env, placed, meshes, ShadowParams(), np.random.default_rng(0))
+    shaded_env, shaded = contact_shadows(env, placed, meshes, ShadowConfig().params(), np.random.default_rng(0))
     w, h = 320, 240
     K, T = intrinsics_from_fov(w, h, 55), look_at([0.6, -0.4, 0.6], [0, 0, 0.05])
     shadow = {}

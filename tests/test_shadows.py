@@ -5,10 +5,10 @@ import pytest
 import trimesh
 from conftest import random_cloud
 
+from pegasus_gen.dataset.config import ShadowConfig
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.renderer import render
 from pegasus_gen.render.shadows import (
-    ShadowParams,
     cone_directions,
     contact_shadows,
     darken,
@@ -17,6 +17,10 @@ from pegasus_gen.render.shadows import (
 )
 from pegasus_gen.splats import procedural
 from pegasus_gen.splats import sh as shlib
+
+
+def shadow_params(**fields):
+    return ShadowConfig(**fields).params()
 
 
 def floor(rng, n=20_000):
@@ -35,7 +39,7 @@ def test_a_splat_under_an_object_darkens_and_one_far_away_is_unchanged(rng):
     env = floor(rng)
     box = box_at([0.0, 0.0, 0.06])  # 1 cm above the floor
     cube = random_cloud(rng, 500, center=(0, 0, 0.06), extent=0.05, labels=(1,))
-    params = ShadowParams(radius=0.1, strength=0.6)
+    params = shadow_params(radius=0.1, strength=0.6)
     shaded, _ = contact_shadows(env, [cube], [box], params, np.random.default_rng(0))
     up = np.tile([0.0, 0.0, 1.0], (len(env), 1))
     before, after = colour(env, up).mean(1), colour(shaded, up).mean(1)
@@ -54,11 +58,11 @@ def test_objects_are_shaded_by_the_others_not_by_themselves(rng):
     a = random_cloud(rng, 300, center=(0, 0, 0.06), extent=0.04, labels=(1,), sh_degree=0)
     b = random_cloud(rng, 300, center=(0.5, 0.5, 0.06), extent=0.04, labels=(2,), sh_degree=0)
     meshes = [box_at([0, 0, 0.06]), box_at([0.5, 0.5, 0.06])]
-    _, (alone_a, alone_b) = contact_shadows(env, [a, b], meshes, ShadowParams(), np.random.default_rng(0))
+    _, (alone_a, alone_b) = contact_shadows(env, [a, b], meshes, shadow_params(), np.random.default_rng(0))
     np.testing.assert_array_equal(alone_a.sh, a.sh)  # nothing else within reach of either
     np.testing.assert_array_equal(alone_b.sh, b.sh)
     roof = box_at([0, 0, 0.12], (0.3, 0.3, 0.02))  # a plate just over a (its splats reach z = 0.1)
-    _, (under_roof, _) = contact_shadows(env, [a, b], [meshes[0], roof], ShadowParams(), np.random.default_rng(0))
+    _, (under_roof, _) = contact_shadows(env, [a, b], [meshes[0], roof], shadow_params(), np.random.default_rng(0))
     up = np.tile([0.0, 0.0, 1.0], (len(a), 1))
     lit = (colour(a, up) > 0.05).all(1)
     assert (colour(under_roof, up)[lit] < colour(a, up)[lit] - 0.01).all(1).mean() > 0.9
@@ -88,18 +92,18 @@ def test_sky_directions_are_cosine_weighted_and_the_cone_is_tight():
 def test_a_wall_over_half_the_sky_hides_half_of_it():
     points = np.random.default_rng(1).uniform([-0.05, -0.05, 0], [0.05, 0.05, 0], (400, 3))
     half_roof = trimesh.creation.box(extents=(100, 200, 0.01)).apply_translation([50.0, 0, 0.2])
-    params = ShadowParams(radius=1e6, rays=64)
+    params = shadow_params(radius=2.0, rays=64)  # the plate 0.2 m up: all but 1 % of the half-sky hits within 2 m
     share = occlusion(points, [half_roof], params, np.random.default_rng(0))
     assert share.mean() == pytest.approx(0.5, abs=0.04)
-    assert occlusion(points, [half_roof], ShadowParams(radius=0.1), np.random.default_rng(0)).max() == 0.0
+    assert occlusion(points, [half_roof], shadow_params(radius=0.1), np.random.default_rng(0)).max() == 0.0
 
 
 def test_the_key_light_is_blocked_only_from_its_side():
     point = np.zeros((1, 3))
     post = box_at([0.3, 0.0, 0.3], (0.05, 0.05, 0.05))  # up and to +x
-    sky_only = ShadowParams(radius=1e-3, light_weight=1.0, light_cone_deg=1.0)
-    towards = ShadowParams(**{**sky_only.__dict__, "light_direction": (1.0, 0.0, 1.0)})
-    away = ShadowParams(**{**sky_only.__dict__, "light_direction": (-1.0, 0.0, 1.0)})
+    light_only = dict(radius=1e-3, light_weight=1.0, light_cone_deg=1.0)
+    towards = shadow_params(**light_only, light_direction=(1.0, 0.0, 1.0))
+    away = shadow_params(**light_only, light_direction=(-1.0, 0.0, 1.0))
     assert occlusion(point, [post], towards, np.random.default_rng(0))[0] == 1.0
     assert occlusion(point, [post], away, np.random.default_rng(0))[0] == 0.0
 
@@ -109,7 +113,7 @@ def test_a_shaded_scene_renders_darker_only_near_the_objects(rng):
     placed = [o.transformed(T) for o, T in zip(objects, poses)]
     meshes = [trimesh.creation.box(bounds=[o.means.min(0), o.means.max(0)]).apply_transform(T)
               for o, T in zip(objects, poses)]
-    shaded_env, shaded = contact_shadows(env, placed, meshes, ShadowParams(), np.random.default_rng(0))
+    shaded_env, shaded = contact_shadows(env, placed, meshes, shadow_params(), np.random.default_rng(0))
     K, T = intrinsics_from_fov(160, 120, 55), look_at([0.6, -0.4, 0.6], [0, 0, 0.05])
     plain = render([env, *placed], K, T, 160, 120, device="cpu")
     dark = render([shaded_env, *shaded], K, T, 160, 120, device="cpu")

@@ -9,6 +9,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import parse_yaml
+from pegasus_gen.render.shadows import ShadowParams
 
 
 class _Strict(BaseModel):
@@ -67,11 +68,15 @@ class ShadowConfig(_Strict):
     enabled: bool = False
     radius: float = Field(default=0.1, gt=0.0, le=2.0)  # m: occluders farther than this along a sky ray do not count
     strength: float = Field(default=0.6, ge=0.0, le=1.0)  # colour x (1 - strength) at full occlusion
-    rays: int = Field(default=32, ge=1, le=1024)  # sky rays per splat
+    rays: int = Field(default=16, ge=1, le=1024)  # sky rays per splat (spun per splat: overlapping splats average)
     light_direction: Optional[tuple[float, float, float]] = None  # world, towards a key light; None: sky only
     light_weight: float = Field(default=0.5, ge=0.0, le=1.0)  # share of the key light in the darkening
     light_cone_deg: float = Field(default=8.0, ge=0.0, lt=90.0)  # the light's cone: soft shadow edges
     light_rays: int = Field(default=8, ge=1, le=256)
+
+    def params(self) -> ShadowParams:
+        """The renderer's parameters."""
+        return ShadowParams(**self.model_dump(exclude={"enabled"}))
 
     @model_validator(mode="after")
     def _light(self):

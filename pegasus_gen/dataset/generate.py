@@ -62,7 +62,7 @@ from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import render
 from pegasus_gen.render.sensor import apply_sensor
-from pegasus_gen.render.shadows import ShadowParams, contact_shadows
+from pegasus_gen.render.shadows import contact_shadows
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.colour import blend_colour, transform_colour
 
@@ -261,8 +261,7 @@ def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateCo
     if not cfg.shadows.enabled:
         return environment, placed
     meshes = [plan.objects[i].surface.copy().apply_transform(poses[i]) for i in kept]
-    params = ShadowParams(**cfg.shadows.model_dump(exclude={"enabled"}))
-    return contact_shadows(environment, placed, meshes, params, rng)
+    return contact_shadows(environment, placed, meshes, cfg.shadows.params(), rng)
 
 
 def camera_image(rgb: np.ndarray, cfg: GenerateConfig, scene_id: int, im_id: int, K: np.ndarray,

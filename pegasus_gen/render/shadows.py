@@ -24,15 +24,16 @@ from pegasus_gen.splats.colour import transform_colour
 
 @dataclass(frozen=True)
 class ShadowParams:
-    """How strong and how wide the shadows are (the generate config's ``shadows`` section)."""
+    """How strong and how wide the shadows are; the defaults and checks are the generate config's ``shadows``
+    section (``pegasus_gen.dataset.config.ShadowConfig``)."""
 
-    radius: float = 0.1  # m: occluders farther than this along a sky ray do not darken
-    strength: float = 0.6  # darkening at full occlusion: colour x (1 - strength)
-    rays: int = 32  # sky rays per splat
-    light_direction: tuple[float, float, float] | None = None  # world, towards a key light
-    light_weight: float = 0.5  # share of the key light in the darkening (the sky has the rest)
-    light_cone_deg: float = 8.0  # half-angle of the light's cone (soft shadow edges)
-    light_rays: int = 8
+    radius: float  # m: occluders farther than this along a sky ray do not darken
+    strength: float  # darkening at full occlusion: colour x (1 - strength)
+    rays: int  # sky rays per splat
+    light_direction: tuple[float, float, float] | None  # world, towards a key light
+    light_weight: float  # share of the key light in the darkening (the sky has the rest)
+    light_cone_deg: float  # half-angle of the light's cone (soft shadow edges)
+    light_rays: int
 
 
 def hemisphere_directions(count: int) -> np.ndarray:
