@@ -28,6 +28,9 @@ HELD_OUT_CAMERA = ["camera.width=640", "camera.height=480", "camera.fov_deg=60",
                    "trajectory.elevation_deg=[45, 65]"]
 
 
+PLAIN_RENDER = ["shadows.enabled=false", "appearance.enabled=false", "distractors.count=[0, 0]"]
+
+
 class DemoSettings(BaseModel):
     """The sizes of a demo run: the dataset, the network and its training, the grasp evaluation."""
 
@@ -94,9 +97,11 @@ class DemoSettings(BaseModel):
 def held_out_overrides(library: str | Path, target: str, environment: str = "store_shelf", scenes: int = 2,
                        frames: int = 10, device: str = "cpu") -> list[str]:
     """``pegasus generate`` overrides of a held-out set: ``target`` (1-2 per scene) in ``environment`` seen
-    with the cell camera's intrinsics, distances and angles (``HELD_OUT_CAMERA``), seed 1000."""
+    with the cell camera's intrinsics, distances and angles (``HELD_OUT_CAMERA``), seed 1000, rendered plain (no
+    shadows, randomisation or distractors: the set every recipe in docs/TRAINING.md was scored on)."""
     return [f"library={library}", f"environments=[{environment}]", f"scenes={scenes}", f"frames_per_scene={frames}",
-            f"device={device}", "seed=1000", f"objects=[{{asset: {target}, count: [1, 2]}}]", *HELD_OUT_CAMERA]
+            f"device={device}", "seed=1000", f"objects=[{{asset: {target}, count: [1, 2]}}]", *HELD_OUT_CAMERA,
+            *PLAIN_RENDER]
 
 
 def stage_times(t0: float, dataset: Path, train_run: Path, t_end: float) -> dict[str, float]:
