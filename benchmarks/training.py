@@ -5,8 +5,9 @@ Usage: python benchmarks/training.py --work out/bench-training [--tag NAME] [--r
 
 Each run: the demo library; a training dataset of the demo's target object (noodle_cup_red, 1-2 per scene,
 0-1 of each distractor) on wooden_table and tiled_floor (``--frames`` frames at 320x240, camera fx
-``--camera-fx``, with the ``--generate key=value`` overrides, e.g. shadows, appearance randomisation or
-distractors; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
+``--camera-fx``, generate's defaults (shadows, appearance randomisation, 1-3 distractors) with the ``--generate
+key=value`` overrides on top, e.g. ``shadows.enabled=false appearance.enabled=false distractors.count=[0,0]``
+for the plain render; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
 left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's camera: 60 degree field of
 view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the recipe (``demo``: the demo's, from
 ``nodes.demo.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields given as
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import csv
 import hashlib
+import json
 import os
 import platform
 import time
@@ -75,11 +77,10 @@ def main() -> None:
                        f"scenes={args.frames // 12}", "frames_per_scene=12", f"camera.width={args.width}",
                        f"camera.height={args.height}", *camera, f"trajectory.distance={args.distance}",
                        f"trajectory.elevation_deg={args.elevation}", *args.generate]
-    name = f"train_{args.frames}_{args.width}x{args.height}_fx{args.camera_fx:g}_d{args.distance}_e{args.elevation}"
-    if args.generate:
-        name += "_" + hashlib.sha256(" ".join(args.generate).encode()).hexdigest()[:8]
+    resolved = load_config(None, train_overrides).model_dump(mode="json", exclude={"library"})
+    name = f"train_{args.frames}_" + hashlib.sha256(json.dumps(resolved, sort_keys=True).encode()).hexdigest()[:10]
     t0 = time.monotonic()
-    data = dataset(work / "datasets" / name.replace(" ", "").replace(",", "-"), train_overrides)
+    data = dataset(work / "datasets" / name, train_overrides)  # named by its whole config: no stale reuse
     held_out = dataset(work / "datasets" / "held_out", held_out_overrides(lib.root, TARGET, frames=15))
     t_data = time.monotonic() - t0
 

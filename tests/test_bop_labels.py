@@ -54,6 +54,8 @@ def read_model(root, obj_id):
 
 def bbox(mask, dx=0, dy=0):
     ys, xs = np.nonzero(mask)
+    if not len(xs):  # wholly off the 3x canvas (a distractor may knock an object far): BOP's "no box"
+        return [-1, -1, -1, -1]
     return [int(xs.min()) - dx, int(ys.min()) - dy, int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1]
 
 

@@ -65,7 +65,7 @@ class ShadowConfig(_Strict):
     """Contact shadows and ambient occlusion (``pegasus_gen.render.shadows``): splats near placed objects
     darkened by the share of the sky (and of an optional key light) the objects hide."""
 
-    enabled: bool = False
+    enabled: bool = True
     radius: float = Field(default=0.1, gt=0.0, le=2.0)  # m: occluders farther than this along a sky ray do not count
     strength: float = Field(default=0.6, ge=0.0, le=1.0)  # colour x (1 - strength) at full occlusion
     rays: int = Field(default=16, ge=1, le=1024)  # sky rays per splat (spun per splat: overlapping splats average)
@@ -101,7 +101,7 @@ class AppearanceConfig(_Strict):
     """Appearance and sensor randomisation, drawn per scene (objects, environment) and per frame (camera),
     from the scene's seed: each value is drawn uniformly from its (min, max)."""
 
-    enabled: bool = False
+    enabled: bool = True
     object_gain: Annotated[Range, _range(0.1, 10.0)] = (0.85, 1.15)  # per instance and channel
     object_hue_deg: float = Field(default=8.0, ge=0.0, le=180.0)  # per instance, hue turned by up to this
     environment_tint: Annotated[Range, _range(0.1, 10.0)] = (0.9, 1.1)  # per scene and channel
@@ -125,7 +125,7 @@ class DistractorConfig(_Strict):
     """Procedural clutter dropped with the objects in each scene, never labelled
     (``pegasus_gen.dataset.distractors``)."""
 
-    count: tuple[int, int] = (0, 0)  # per scene, inclusive range
+    count: tuple[int, int] = (1, 3)  # per scene, inclusive range
     size: Annotated[Range, _range(0.01, 1.0)] = (0.04, 0.14)  # m, the largest extent
 
     @model_validator(mode="after")
