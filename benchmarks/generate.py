@@ -1,10 +1,10 @@
 """End-to-end generation speed: frames/s with rgb, depth and masks written (640x480, 3-6 objects, the demo
 wooden table in its room, static scenes), in one process, in ``--workers`` processes and as Ray tasks on a
-private local Ray instance with as many CPUs (its start-up included), and in one process with contact
-shadows, appearance randomisation and 2-4 distractors switched on.
+private local Ray instance with as many CPUs (its start-up included), all with generate's defaults (contact
+shadows, appearance randomisation, 1-3 distractors), and in one process with the plain render (all three off).
 
 Usage: python benchmarks/generate.py [--scenes 4] [--frames 10] [--device cpu|cuda|auto] [--workers 2]
-       [--runs one,workers,ray,randomised]
+       [--runs one,workers,ray,plain]
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from pegasus_gen.dataset.generate import generate
 
 OBJECTS = ("[{asset: 1, count: [0, 1]}, {asset: 2, count: [0, 1]}, {asset: 5, count: [0, 1]},"
            " {asset: 7, count: [1, 1]}, {asset: 8, count: [1, 2]}]")
-RUNS = {"one": ["workers=1"], "workers": [], "ray": ["ray=local"],
-        "randomised": ["workers=1", "shadows.enabled=true", "appearance.enabled=true", "distractors.count=[2, 4]"]}
+PLAIN = ["shadows.enabled=false", "appearance.enabled=false", "distractors.count=[0, 0]"]
+RUNS = {"one": ["workers=1"], "workers": [], "ray": ["ray=local"], "plain": ["workers=1", *PLAIN]}
 
 
 def main():
@@ -32,7 +32,7 @@ def main():
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--runs", default="one,workers,ray,randomised")
+    parser.add_argument("--runs", default="one,workers,ray,plain")
     args = parser.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs")
     with tempfile.TemporaryDirectory() as tmp:
