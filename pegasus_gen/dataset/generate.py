@@ -1,4 +1,5 @@
-"""`pegasus generate`: environments + objects -> physics -> camera trajectories -> renders -> BOP dataset.
+"""`pegasus generate`: environments + objects (+ unlabelled distractors) -> physics -> camera trajectories ->
+appearance and contact shadows on the splats -> renders -> the camera's effects -> BOP dataset.
 
 Layout (BOP train_pbr style)::
 
@@ -17,7 +18,8 @@ run never leaves a half scene; ``resume`` skips the scenes already there after c
 stored config and the assets' files match. Each scene draws from its own random generator seeded by
 (seed, scene id): the same seed gives the same annotations whatever was resumed and however many
 workers ran. Scenes are spread over ``workers`` processes, which die with the run (even a kill -9 of
-it); inside a process, image encoding and writing run on threads while the next frame renders.
+it), or run as Ray tasks (``ray``, ``dataset.on_ray``); inside a process, image encoding and writing run on
+threads while the next frame renders.
 """
 
 from __future__ import annotations
