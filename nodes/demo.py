@@ -68,7 +68,7 @@ class DemoSettings(BaseModel):
     @classmethod
     def small(cls) -> "DemoSettings":
         """Fits a 2-core CPU in about 20 minutes."""
-        return cls(scenes=80, frames=12, width=320, height=240, variant="light", size=128, epochs=16, attempts=10,
+        return cls(scenes=80, frames=12, width=320, height=240, variant="light", size=128, epochs=28, attempts=10,
                    objects="noodle_cup_red", device="cpu", time_scale=3.0)
 
     @classmethod
