@@ -1,7 +1,7 @@
 """DOPE training recipes on a CPU, measured on a fixed held-out set: what ``docs/TRAINING.md`` reports.
 
 Usage: python benchmarks/training.py --work out/bench-training [--tag NAME] [--recipe demo|dope] [--frames 960]
-       [--camera-fx 554] [--train key=value ...] [--generate key=value ...]
+       [--camera-fx 554] [--train key=value ...] [--generate key=value ...] [--reuse RUN]
 
 Each run: the demo library; a training dataset of the demo's target object (noodle_cup_red, 1-2 per scene,
 0-1 of each distractor) on wooden_table and tiled_floor (``--frames`` frames at 320x240, camera fx
@@ -12,7 +12,9 @@ left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's 
 view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the recipe (``demo``: the demo's, from
 ``nodes.demo.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields given as
 ``--train key=value`` on top (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates of
-DOPE alone and with depth refinement. Prints one row and appends it to ``--work``/results.csv.
+DOPE alone and with depth refinement. Prints one row and appends it to ``--work``/results.csv. ``--reuse RUN``
+skips the training and scores the finished run ``--work``/runs/RUN with today's decoder (the row's train
+figures are then empty).
 """
 
 from __future__ import annotations
@@ -68,6 +70,7 @@ def main() -> None:
     parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields as key=value")
     parser.add_argument("--generate", nargs="*", default=[],
                         help="training-data generate overrides as key=value (e.g. shadows.enabled=true)")
+    parser.add_argument("--reuse", help="score this finished run in --work/runs instead of training")
     args = parser.parse_args()
     work = Path(args.work)
     lib = AssetLibrary(None)
@@ -88,19 +91,25 @@ def main() -> None:
     fields = {"size": demo.size, "epochs": demo.epochs, **parse_options(demo.train_options())} \
         if args.recipe == "demo" else {}
     fields |= parse_options(args.train)
-    out = work / "runs" / args.tag
-    cfg = TrainConfig(data=[str(data)], object=TARGET, out=str(out), device="cpu", **fields)
-    t0 = time.monotonic()
-    train(cfg)
-    t_train = time.monotonic() - t0
+    if args.reuse:
+        out = work / "runs" / args.reuse
+        if not (out / "last.pt").is_file():
+            raise SystemExit(f"--reuse {args.reuse}: no {out / 'last.pt'}")
+        t_train = rate = None
+    else:
+        out = work / "runs" / args.tag
+        cfg = TrainConfig(data=[str(data)], object=TARGET, out=str(out), device="cpu", **fields)
+        t0 = time.monotonic()
+        train(cfg)
+        t_train = time.monotonic() - t0
+        rate = round(sum(r["images"] for r in read_losses(out / "loss.csv")) / t_train, 1)
     rows = read_losses(out / "loss.csv")
-    rate = sum(r["images"] for r in rows) / t_train
     report = evaluate(DopeModel(out / "last.pt"), held_out, "train_pbr", refine=True)
-    write_report(report, out / "eval_held_out")
+    write_report(report, out / f"eval_held_out{'_' + args.tag if args.reuse else ''}")
     dope, refined = report["ADD-S"], report["refined"]["ADD-S"]
     row = {"tag": args.tag, "recipe": args.recipe, "frames": args.frames, "camera_fx": args.camera_fx,
            "generate": " ".join(args.generate), "train": " ".join(args.train),
-           "train_min": round(t_train / 60, 1), "images_per_s": round(rate, 1),
+           "train_min": t_train and round(t_train / 60, 1), "images_per_s": rate,
            "final_loss": round(rows[-1]["loss"], 5),
            "instances": report["instances"], "misses": report["misses"], "false_positives": report["false_positives"],
            "adds_auc": round(dope["auc_0_10cm"], 3), "pass_2cm": round(dope["pass_2cm"], 3),

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from dope_training.targets import make_targets
+from dope_training.targets import SIGMA_PX, make_targets
 from pegasus_gen.dataset.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
@@ -188,10 +188,11 @@ class DopeDataset(torch.utils.data.Dataset):
     """
 
     def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
-                 stride: int = 8, focal_px: float = 0.0):
+                 stride: int = 8, focal_px: float = 0.0, sigma_px: float = SIGMA_PX):
         if size % stride:
             raise PegasusError(f"input size {size} must be a multiple of the network stride {stride}")
         self.samples, self.size, self.stride, self.seed, self.focal_px = samples, size, stride, seed, focal_px
+        self.sigma_px = sigma_px
         self.augment = augment or Augment()
         self.epoch = 0
 
@@ -222,6 +223,6 @@ class DopeDataset(torch.utils.data.Dataset):
     def __getitem__(self, index: int):
         crop, keypoints, _ = self.item(index)
         beliefs, affinities = make_targets(keypoints, np.ones(keypoints.shape[:2], bool), self.size, self.size,
-                                           stride=self.stride)
+                                           stride=self.stride, sigma_px=self.sigma_px)
         image = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1).float() / 255.0
         return image, torch.from_numpy(beliefs), torch.from_numpy(affinities)

@@ -250,11 +250,12 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
         if world > 1 else model
 
-    dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px)
+    dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
+                          sigma_px=cfg.sigma_px)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
     loader_args = dict(batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.loader_workers,
                        pin_memory=device.type == "cuda")
-    still = DopeDataset(samples[:1], cfg.size, Augment(enabled=False), focal_px=cfg.focal_px)
+    still = DopeDataset(samples[:1], cfg.size, Augment(enabled=False), focal_px=cfg.focal_px, sigma_px=cfg.sigma_px)
     snapshot_crop = still.item(0)[0]
     snapshot_target = still[0][1].numpy()
 

@@ -100,6 +100,15 @@ def test_augmented_crops_carry_their_keypoints_and_plain_borders(tmp_path):
     image_t, beliefs, affinities = data[0]
     assert tuple(image_t.shape) == (3, 160, 160) and tuple(beliefs.shape) == (9, 20, 20)
     assert float(image_t.max()) <= 1.0 and float(beliefs.max()) > 0.5
+    for sigma in (4.0, 8.0):  # sigma_px reaches the targets: a Gaussian's sum over the cells is 2 pi sigma^2 / 8^2
+        wide, sums = DopeDataset([sample], size=160, augment=still, sigma_px=sigma), []
+        for epoch in range(5):
+            wide.epoch = epoch
+            _, moved, _ = wide.item(0)
+            clear = (moved[0] >= 3 * sigma).all(1) & (moved[0] < 160 - 3 * sigma).all(1)
+            sums += list(wide[0][1].numpy()[clear].sum(axis=(1, 2)))
+        assert len(sums) >= 5
+        np.testing.assert_allclose(sums, 2 * np.pi * sigma**2 / 64, rtol=0.05)
 
 
 
