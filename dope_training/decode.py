@@ -5,16 +5,23 @@ stack's map convention.
 Peaks: a copy of each belief map blurred with a Gaussian of ``blur_cells`` cells serves only to find
 them: a peak is a cell of the blurred map >= its 4 neighbours (on a tie the right/lower cell wins, so a
 two-cell plateau gives one peak) and > ``blur_threshold``; its score is the unblurred belief there,
-kept when > ``min_score``. Its position is the belief-weighted mean of the cell coordinates over the 5x5
-unblurred window around it (negative outputs weigh 0), taken to input pixels by
-``targets.cells_to_pixels``, the exact inverse of how ``make_targets`` lays out the cells; so there is no
-0.4395 offset as upstream. From exact targets this is within 0.26 px of the keypoint (the 0.5-cell
-Gaussian sampled once per cell), except within a cell of the map's border (pulled inward, up to 4 px).
+kept when > ``min_score``. Its sub-cell position, along rows and along columns apart, is the vertex of the
+parabola through the logarithms of the unblurred beliefs at the peak cell and its two neighbours (``subcell``:
+a Gaussian's logarithm is a parabola, so this is exact for a Gaussian peak of any width, clamped to one
+cell; values floored at 1e-3), taken to input pixels by ``targets.cells_to_pixels``, the exact inverse of
+how ``make_targets`` lays out the cells; so there is no 0.4395 offset as upstream. On a map's border cell the
+missing neighbour leaves that coordinate at the cell's centre (up to 4 px off).
+
+Why not upstream's belief-weighted mean over a 5x5 window: it is off by up to 0.26 px on exact targets, a
+same-kind keypoint 4 cells away pulls it by up to 7 px, and on a trained network's maps the low, noisy
+beliefs around a peak pull it towards the window's centre. On the held-out set of ``docs/TRAINING.md`` (71
+cups) the parabola lifted DOPE's ADD-S AUC over the 5x5 mean for each of four networks trained 40 epochs
+(+0.003 to +0.057) and lowered it for one trained 28 (-0.09): an under-trained network's peaks are too
+flat for a three-cell fit.
 
 Blur: 1 cell, where upstream uses 3. Our belief targets are 0.5 cell wide; measured on them, with 1 cell
 both of two same-kind keypoints are found from 4 cells (32 px) apart, with 3 cells one of them is lost
-in half the cases at 7 cells (56 px) and nearly always below. The 5x5 window (upstream's) lets same-kind
-keypoints nearer than 5 cells (40 px) pull each other's position (up to 7 px at 4 cells).
+in half the cases at 7 cells (56 px) and nearly always below.
 
 Grouping: every centroid peak starts an instance. A corner peak of kind k may join an instance when the
 unit vector from the corner to its centroid differs from the affinity of kind k read at the peak cell
@@ -33,7 +40,7 @@ import numpy as np
 
 from dope_training.targets import cells_to_pixels
 
-WINDOW = 5  # cells, the sub-pixel window's side
+LOG_FLOOR = 1e-3  # beliefs below this count as this in the sub-cell fit
 
 
 @dataclass
@@ -61,15 +68,27 @@ def find_peaks(belief: np.ndarray, stride: int = 8, blur_cells: float = 1.0, blu
     is_peak = ((centre >= padded[1:-1, :-2]) & (centre > padded[1:-1, 2:]) & (centre >= padded[:-2, 1:-1])
                & (centre > padded[2:, 1:-1]) & (centre > blur_threshold) & (belief > min_score))
     cells = np.argwhere(is_peak)
-    r = WINDOW // 2
-    h, w = belief.shape
-    points = np.empty((len(cells), 2))
-    for n, (i, j) in enumerate(cells):
-        rows, cols = slice(max(i - r, 0), min(i + r + 1, h)), slice(max(j - r, 0), min(j + r + 1, w))
-        weights = np.maximum(belief[rows, cols], 0.0)
-        ii, jj = np.mgrid[rows, cols]
-        points[n] = ((weights * jj).sum(), (weights * ii).sum()) / weights.sum()
+    points = np.array([subcell(belief, i, j)[::-1] for i, j in cells]).reshape(-1, 2)
     return cells_to_pixels(points, stride), cells, belief[tuple(cells.T)]
+
+
+def subcell(belief: np.ndarray, i: int, j: int) -> np.ndarray:
+    """(row, column) [2] in fractional cells of the peak at cell (i, j) of ``belief`` [h, w]: per axis the vertex
+    of the parabola through log(belief) at the cell and its two neighbours, within a cell of it (the peak of
+    the blurred map can be the cell next to the unblurred one's)."""
+    position = np.array([i, j], dtype=np.float64)
+
+    def log(cell: tuple[int, int]) -> float:
+        return float(np.log(max(float(belief[cell]), LOG_FLOOR)))
+
+    for axis, (before, after) in enumerate((((i - 1, j), (i + 1, j)), ((i, j - 1), (i, j + 1)))):
+        if min(before) < 0 or after[0] >= belief.shape[0] or after[1] >= belief.shape[1]:
+            continue  # border cell: no neighbour on one side
+        left, centre, right = log(before), log((i, j)), log(after)
+        curvature = left - 2 * centre + right
+        if curvature < 0:
+            position[axis] += np.clip(0.5 * (left - right) / curvature, -1.0, 1.0)
+    return position
 
 
 def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8, blur_cells: float = 1.0,
