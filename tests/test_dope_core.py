@@ -112,6 +112,26 @@ def test_pnp_recovers_poses_from_exact_keypoints_and_holds_up_under_noise_and_mi
         assert 1.0 < np.median(px) < 3.0  # the residual is the noise, not a wrong pose
 
 
+def test_pnp_drops_keypoints_that_do_not_fit_the_others():
+    """Two of nine keypoints moved by 40-60 % of the box's projected size (peaks of something else joined to the
+    instance): the pose is the one solved from the seven others alone."""
+    rng = np.random.default_rng(2)
+    for _ in range(30):
+        truth = random_pose(rng)
+        keypoints = project_points(CUBOID, truth, K) + rng.normal(0, 1.0, (9, 2))
+        size = np.linalg.norm(np.ptp(keypoints[:8], axis=0))
+        wrong = rng.choice(9, 2, replace=False)
+        directions = rng.normal(size=(2, 2))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        keypoints[wrong] += directions * rng.uniform(0.4, 0.6, (2, 1)) * size
+        T, error_px = solve_pose(keypoints, CUBOID, K)
+        seven = keypoints.copy()
+        seven[wrong] = np.nan
+        reference, reference_px = solve_pose(seven, CUBOID, K)
+        dt, dr = pose_error(T, reference)
+        assert dt < 1e-6 and dr < 1e-4 and error_px == pytest.approx(reference_px)
+
+
 def test_pnp_refuses_too_few_keypoints_and_poses_behind_the_camera(monkeypatch):
     truth = random_pose(np.random.default_rng(1))
     keypoints = project_points(CUBOID, truth, K)
