@@ -1,20 +1,20 @@
 """DOPE training recipes on a CPU, measured on a fixed held-out set: what ``docs/TRAINING.md`` reports.
 
 Usage: python benchmarks/training.py --work out/bench-training [--tag NAME] [--recipe demo|dope] [--frames 960]
-       [--camera-fx 554] [--train key=value ...] [--generate key=value ...] [--reuse RUN]
+       [--per-scene 12] [--camera-fx 554] [--train key=value ...] [--generate key=value ...] [--reuse RUN]
 
-Each run: the demo library; a training dataset of the demo's target object (noodle_cup_red, 1-2 per scene,
-0-1 of each distractor) on wooden_table and tiled_floor (``--frames`` frames at 320x240, camera fx
-``--camera-fx``, generate's defaults (shadows, appearance randomisation, 1-3 distractors) with the ``--generate
-key=value`` overrides on top, e.g. ``shadows.enabled=false appearance.enabled=false distractors.count=[0,0]``
-for the plain render; made once per setting and reused from ``--work``); the held-out set, made once (store_shelf,
-left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's camera: 60 degree field of
-view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the recipe (``demo``: the demo's, from
-``nodes.demo.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields given as
-``--train key=value`` on top (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates of
+Each run: the demo library; a training dataset of the demo's target object (noodle_cup_red, 1-2 per scene, 0-1 of
+each distractor) on wooden_table and tiled_floor (``--frames`` frames, ``--per-scene`` per scene, at 320x240,
+camera fx ``--camera-fx``, generate's defaults (shadows, appearance randomisation, 1-3 distractors) with the
+``--generate key=value`` overrides on top, e.g. ``shadows.enabled=false appearance.enabled=false
+distractors.count=[0,0]`` for the plain render; made once per setting and reused from ``--work``); the held-out
+set, made once (store_shelf, left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's
+camera: 60 degree field of view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the recipe (``demo``:
+the demo's, from ``nodes.demo.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields
+given as ``--train key=value`` on top (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates of
 DOPE alone and with depth refinement. Prints one row and appends it to ``--work``/results.csv. ``--reuse RUN``
-skips the training and scores the finished run ``--work``/runs/RUN with today's decoder (the row's train
-figures are then empty).
+skips the training and scores the finished run ``--work``/runs/RUN with today's decoder (the row's train figures
+are then empty).
 """
 
 from __future__ import annotations
@@ -59,7 +59,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", default="out/bench-training")
     parser.add_argument("--tag", default="run")
-    parser.add_argument("--frames", type=int, default=960, help="training frames (12 per scene)")
+    parser.add_argument("--frames", type=int, default=960, help="training frames")
+    parser.add_argument("--per-scene", type=int, default=12, help="training frames per scene")
     parser.add_argument("--width", type=int, default=320)
     parser.add_argument("--height", type=int, default=240)
     parser.add_argument("--recipe", choices=("demo", "dope"), default="demo")
@@ -77,9 +78,10 @@ def main() -> None:
     build_demo_library(lib)
     camera = [f"camera.fx={args.camera_fx}", f"camera.fy={args.camera_fx}"] if args.camera_fx else []
     train_overrides = [f"library={lib.root}", "environments=[wooden_table, tiled_floor]", f"objects={OBJECTS}",
-                       f"scenes={args.frames // 12}", "frames_per_scene=12", f"camera.width={args.width}",
-                       f"camera.height={args.height}", *camera, f"trajectory.distance={args.distance}",
-                       f"trajectory.elevation_deg={args.elevation}", *args.generate]
+                       f"scenes={args.frames // args.per_scene}", f"frames_per_scene={args.per_scene}",
+                       f"camera.width={args.width}", f"camera.height={args.height}", *camera,
+                       f"trajectory.distance={args.distance}", f"trajectory.elevation_deg={args.elevation}",
+                       *args.generate]
     resolved = load_config(None, train_overrides).model_dump(mode="json", exclude={"library"})
     name = f"train_{args.frames}_" + hashlib.sha256(json.dumps(resolved, sort_keys=True).encode()).hexdigest()[:10]
     t0 = time.monotonic()
@@ -115,7 +117,8 @@ def main() -> None:
            "adds_auc": round(dope["auc_0_10cm"], 3), "pass_2cm": round(dope["pass_2cm"], 3),
            "pass_5cm": round(dope["pass_5cm"], 3), "refined_adds_auc": round(refined["auc_0_10cm"], 3),
            "refined_pass_2cm": round(refined["pass_2cm"], 3), "refined_pass_5cm": round(refined["pass_5cm"], 3),
-           "rejected": report["refined"]["rejected"], "data_min": round(t_data / 60, 1)}
+           "rejected": report["refined"]["rejected"], "data_min": round(t_data / 60, 1),
+           "per_scene": args.per_scene}
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}")
     print(row)
     results = work / "results.csv"
