@@ -3,16 +3,16 @@ ONNX file, or torch on a training checkpoint.
 
 Steps: the image is scaled to the training crops' nominal scale (``data.input_scale``: its fx becomes
 ``input_focal_px``, or with DOPE's policy its shorter side ``input_short_side``), padded right/bottom to a
-multiple of 8, run; belief peaks are grouped into instances by the affinities (``decode.find_keypoints``);
-the keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as
-cv2.resize samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt) with the camera K gives the
-pose. Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are
-solved, see ``pnp``. With a depth image, each pose is then refined against it
-(``refine.refine_multistart``), starting from the pose moved onto the ray through the detected centroid at
-the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP cannot solve (too few corners
-joined it, or they put the object behind the camera) is then not lost: its refinement starts on the same
-ray with the object's own axes (the several-start refinement tries the other rotations), and it is kept
-when the depth confirms it.
+multiple of 8, run; belief peaks are grouped into instances by the affinities (``decode.find_keypoints``); the
+keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as cv2.resize
+samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt, keypoints that do not fit the others
+dropped) with the camera K gives the pose. Missing corners do not drop a detection: any 5 of the 9 keypoints
+(the centroid counts as one) are solved, see ``pnp``. With a depth image, each pose is then refined against it
+(``refine.refine_multistart``), starting from the pose moved onto the ray through the detected centroid at the
+depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP cannot solve (too few corners joined
+it, or they put the object behind the camera) is then not lost: its refinement starts on the same ray with the
+object's own axes (the several-start refinement tries the other rotations), and it is kept when the depth
+confirms it.
 """
 
 from __future__ import annotations
