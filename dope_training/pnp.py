@@ -1,16 +1,16 @@
 """Object pose from DOPE's 2D keypoints and the object's cuboid (Perspective-n-Point), robust to wrong keypoints.
 
 Rule: the keypoints found (finite rows; the centroid counts like a corner) must number at least
-``MIN_POINTS``. The pose is the global minimum of SQPnP (cv2.SOLVEPNP_SQPNP: any configuration of >= 3
-points, coplanar ones included, no initial guess), refined by Levenberg-Marquardt on the reprojection
-error (cv2.solvePnPRefineLM). Then, while more than ``MIN_INLIERS`` keypoints are in use and the worst of
-them lies farther from its reprojection than ``OUTLIER_FRACTION`` of the projected box's diagonal, that one is
-dropped and the pose solved again: a peak of the wrong cup, of another object or of noise that joined the
-instance pulls every keypoint's pose with it (on the held-out cups of ``docs/TRAINING.md`` DOPE's ADD-S AUC
-rose by 0.11-0.21 with four networks). Solutions that put any cuboid point at or behind the camera plane are
-rejected. Why 5: over 300 random poses of a 10 cm box at 0.4-0.9 m (f = 600 px), 4 exact keypoints gave
-a wrong pose (up to 176 degrees off) for 1.7 % of them, and with 2 px noise a 95th-percentile rotation error
-of 12 degrees against 4.6 with 5 keypoints and 3.1 with all 9.
+``MIN_POINTS``. The pose is the global minimum of SQPnP (cv2.SOLVEPNP_SQPNP: any configuration of >= 3 points,
+coplanar ones included, no initial guess), refined by Levenberg-Marquardt on the reprojection error
+(cv2.solvePnPRefineLM). Then, while more than ``MIN_INLIERS`` keypoints are in use and the worst of them lies
+farther from its reprojection than ``OUTLIER_FRACTION`` of the projected box's diagonal, that one is dropped
+and the pose solved again: a misplaced corner peak, or a peak of another cup, another object or noise joined
+to the instance, pulls the whole pose with it (on the held-out cups of ``docs/TRAINING.md`` DOPE's ADD-S AUC
+rose by 0.13-0.36 for six networks). Solutions that put any cuboid point at or behind the camera plane are
+rejected. Why 5: over 300 random poses of a 10 cm box at 0.4-0.9 m (f = 600 px), 4 exact keypoints gave a
+wrong pose (up to 176 degrees off) for 1.7 % of them, and with 2 px noise a 95th-percentile rotation error of
+12 degrees against 4.6 with 5 keypoints and 3.1 with all 9.
 """
 
 from __future__ import annotations
