@@ -84,8 +84,12 @@ def main() -> None:
                        *args.generate]
     resolved = load_config(None, train_overrides).model_dump(mode="json", exclude={"library"})
     name = f"train_{args.frames}_" + hashlib.sha256(json.dumps(resolved, sort_keys=True).encode()).hexdigest()[:10]
+    reused = work / "runs" / args.reuse if args.reuse else None
+    if reused is not None and not (reused / "last.pt").is_file():
+        raise SystemExit(f"--reuse {args.reuse}: no {reused / 'last.pt'}")
     t0 = time.monotonic()
-    data = dataset(work / "datasets" / name, train_overrides)  # named by its whole config: no stale reuse
+    # named by its whole config: no stale reuse; not needed to score a finished run
+    data = None if reused else dataset(work / "datasets" / name, train_overrides)
     held_out = dataset(work / "datasets" / "held_out", held_out_overrides(lib.root, TARGET, frames=15))
     t_data = time.monotonic() - t0
 
@@ -93,11 +97,8 @@ def main() -> None:
     fields = {"size": demo.size, "epochs": demo.epochs, **parse_options(demo.train_options())} \
         if args.recipe == "demo" else {}
     fields |= parse_options(args.train)
-    if args.reuse:
-        out = work / "runs" / args.reuse
-        if not (out / "last.pt").is_file():
-            raise SystemExit(f"--reuse {args.reuse}: no {out / 'last.pt'}")
-        t_train = rate = None
+    if reused:
+        out, t_train, rate = reused, None, None
     else:
         out = work / "runs" / args.tag
         cfg = TrainConfig(data=[str(data)], object=TARGET, out=str(out), device="cpu", **fields)
@@ -111,7 +112,7 @@ def main() -> None:
     dope, refined = report["ADD-S"], report["refined"]["ADD-S"]
     row = {"tag": args.tag, "recipe": args.recipe, "frames": args.frames, "camera_fx": args.camera_fx,
            "generate": " ".join(args.generate), "train": " ".join(args.train),
-           "train_min": t_train and round(t_train / 60, 1), "images_per_s": rate,
+           "train_min": None if t_train is None else round(t_train / 60, 1), "images_per_s": rate,
            "final_loss": round(rows[-1]["loss"], 5),
            "instances": report["instances"], "misses": report["misses"], "false_positives": report["false_positives"],
            "adds_auc": round(dope["auc_0_10cm"], 3), "pass_2cm": round(dope["pass_2cm"], 3),

@@ -7,6 +7,7 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from dope_training.targets import SIGMA_PX
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import parse_yaml
 
@@ -39,8 +40,8 @@ class TrainConfig(BaseModel):
     symmetry_axis: Optional[tuple[float, float, float]] = Field(
         None, description="axis (object frame) about which the object's shape is rotationally symmetric: canonical "
                           "labels about it (default: the dataset's symmetries_continuous, if any)")
-    sigma_px: float = Field(4.0, gt=0.0, description="std of the belief targets' Gaussians, network-input px "
-                                                     "(DOPE: 4, half a map cell)")
+    sigma_px: float = Field(SIGMA_PX, gt=0.0, description="std of the belief targets' Gaussians, network-input px "
+                                                          "(DOPE: 4, half a map cell)")
     min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
                                             "nominal-scale crops around the instances only)")
