@@ -2,11 +2,17 @@
 
 ADD and ADD-S: see ``pegasus_gen.geometry.pose_error``. The object's metric is ADD-S when models_info gives
 it symmetries or the network was trained as symmetric (``TargetObject.symmetric``), else ADD; both are
-reported. Every ground-truth instance of the object seen at visib_fract >=
-``min_visibility`` counts: each is matched to the estimate of smallest ADD-S in its image (greedily, each
-estimate at most once); an instance with no estimate left is a miss (infinite error, failing every
-threshold); estimates left over are false positives. Pass rates at 2, 5 and 10 cm; AUC: the area under the
-pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0). With depth refinement
+reported. Every image of the split is run. Every ground-truth instance of the object seen at visib_fract >=
+``min_visibility`` counts; instances seen less are ignored (an estimate on one is neither right nor a false
+positive). An estimate is *on* an instance when its projected origin (the model's centre) lies inside the
+instance's projected model box (the 2D box of its model points at the true pose): a detection, whatever its
+pose error. Each counted instance is matched to the estimate on it of smallest ADD-S (greedily, each
+estimate at most once); an instance with none is a miss (infinite error, failing every threshold); an
+estimate left over is a false positive (a duplicate included) unless it lies on an ignored instance.
+Figures: BOP's recall at 0.1 d (the share of counted instances whose error is below 10 % of the model's
+diameter d, from models_info), false positives per image, misses, pass rates at 2, 5 and 10 cm, and the
+AUC: the area under the pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0).
+With depth refinement
 (``refine``) the refined poses are matched and scored the same way, a rejected refinement being a miss.
 The report's ``estimates`` are the poses output for the evaluated images in BOP19's results form (scene_id,
 im_id, obj_id, score, R row-major, t in mm, time: the image's inference seconds): the refined poses the
@@ -28,6 +34,7 @@ from tqdm import tqdm
 
 from dope_training.infer import DopeModel
 from pegasus_gen.dataset.bop import bop_frames
+from pegasus_gen.dataset.view import draw_instance
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.pose_error import add_error, adds_error
 from pegasus_gen.io import images
@@ -37,6 +44,9 @@ from pegasus_gen.io.plots import line_chart
 THRESHOLDS_M = (0.02, 0.05, 0.10)
 AUC_MAX_M = 0.10
 MAX_MODEL_POINTS = 2000
+GALLERY_IMAGES = 12
+TRUTH_COLOUR = (40, 220, 40)
+ESTIMATE_COLOUR = (255, 60, 200)
 
 
 def pass_rates(errors: np.ndarray, thresholds) -> np.ndarray:
@@ -65,7 +75,7 @@ def model_points(root: Path, obj_id: int) -> np.ndarray:
 
 @dataclass
 class Match:
-    """One ground-truth instance and its estimate (None: missed)."""
+    """One counted ground-truth instance and its estimate (None: missed)."""
 
     scene: str
     im_id: int
@@ -77,10 +87,36 @@ class Match:
     T_gt: np.ndarray
 
 
-def match_instances(points: np.ndarray, truths: list[np.ndarray], estimates: list[np.ndarray]) -> tuple[list, int]:
-    """Greedy one-to-one matching by ADD-S of truths and estimates (T_cam_obj [4, 4] each): [(truth index,
-    estimate index or None, add, adds)] in truth order, and the count of estimates left over."""
-    pairs = sorted((adds_error(points, e, t), i, j) for i, t in enumerate(truths) for j, e in enumerate(estimates))
+def projected_box(points: np.ndarray, T_cam_obj: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """[4] (u_min, v_min, u_max, v_max) px: the 2D box of ``points`` [N, 3] (m, object frame) at T_cam_obj
+    [4, 4] seen with K [3, 3]; empty (inf, inf, -inf, -inf) when any point lies behind the camera."""
+    cam = points @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
+    if np.any(cam[:, 2] <= 1e-6):
+        return np.array([np.inf, np.inf, -np.inf, -np.inf])
+    uv = cam @ K.T
+    uv = uv[:, :2] / uv[:, 2:]
+    return np.concatenate([uv.min(0), uv.max(0)])
+
+
+def is_on(T_est: np.ndarray, box: np.ndarray, K: np.ndarray) -> bool:
+    """Whether the estimate's origin (T_est [4, 4], m) projects (K [3, 3]) inside ``box`` [4] px."""
+    t = T_est[:3, 3]
+    if t[2] <= 1e-6:
+        return False
+    u, v = (K @ t)[:2] / t[2]
+    return bool(box[0] <= u <= box[2] and box[1] <= v <= box[3])
+
+
+def match_instances(points: np.ndarray, truths: list[np.ndarray], estimates: list[np.ndarray], K: np.ndarray,
+                    ignored: list[np.ndarray] = ()) -> tuple[list, int]:
+    """Match estimates to counted ``truths`` (T_cam_obj [4, 4] each; see the module docstring): greedily by
+    ADD-S among the pairs where the estimate is on the truth (its origin projects inside the truth's model box,
+    ``points`` [N, 3] m, K [3, 3]). Returns [(truth index, estimate index or None, add, adds)] in truth order
+    (None with inf errors: a miss) and the count of false positives: estimates left over that lie on none of
+    the ``ignored`` instances (T_cam_obj [4, 4] each)."""
+    boxes = [projected_box(points, t, K) for t in truths]
+    pairs = sorted((adds_error(points, e, t), i, j) for i, t in enumerate(truths) for j, e in enumerate(estimates)
+                   if is_on(e, boxes[i], K))
     taken_t, taken_e, out = set(), set(), []
     for adds, i, j in pairs:
         if i not in taken_t and j not in taken_e:
@@ -88,13 +124,23 @@ def match_instances(points: np.ndarray, truths: list[np.ndarray], estimates: lis
             taken_e.add(j)
             out.append((i, j, add_error(points, estimates[j], truths[i]), adds))
     out += [(i, None, np.inf, np.inf) for i in range(len(truths)) if i not in taken_t]
-    return sorted(out, key=lambda m: m[0]), len(estimates) - len(taken_e)
+    ignored_boxes = [projected_box(points, t, K) for t in ignored]
+    false_positives = sum(1 for j, e in enumerate(estimates) if j not in taken_e
+                          and not any(is_on(e, b, K) for b in ignored_boxes))
+    return sorted(out, key=lambda m: m[0]), false_positives
 
 
-def summary(errors: np.ndarray) -> dict:
-    """AUC (0-10 cm), pass rates and median of finite errors [N] (m, inf = miss)."""
+def recall(errors: np.ndarray, threshold: float) -> float:
+    """BOP's recall: the share of ``errors`` [N] (m, inf = miss) below ``threshold`` (m; e.g. 0.1 d)."""
+    errors = np.asarray(errors, float)
+    return float((errors < threshold).mean()) if len(errors) else 0.0
+
+
+def summary(errors: np.ndarray, diameter_m: float) -> dict:
+    """Recall at 0.1 d (``diameter_m``), AUC (0-10 cm), pass rates and median of finite errors [N] (m, inf =
+    miss)."""
     found = errors[np.isfinite(errors)]
-    return {"auc_0_10cm": auc(errors),
+    return {"recall_0_1d": recall(errors, 0.1 * diameter_m), "auc_0_10cm": auc(errors),
             **{f"pass_{round(t * 100)}cm": float(r) for t, r in zip(THRESHOLDS_M, pass_rates(errors, THRESHOLDS_M))},
             "median_m": float(np.median(found)) if len(found) else None}
 
@@ -104,7 +150,8 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     """The report (see the module docstring) as a dict; ``max_images`` per scene. With ``refine`` every
     estimate is also refined with the frame's depth image (``DopeModel.estimate``) and the report gains
     ``refined``: the same figures for the refined poses, where an estimate the refinement rejects counts
-    as a miss (a robot would not act on it)."""
+    as a miss (a robot would not act on it). ``frames`` lists per image its misses, false positives and
+    instances failing 0.1 d, for the gallery of the worst (``write_report``)."""
     root = Path(root)
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder (choose --split)")
@@ -118,15 +165,14 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         raise PegasusError(f"{root}: obj_id {obj.obj_id} is {np.round(size, 3).tolist()} m, the model's object "
                            f"{obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
     symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous") or obj.symmetric)
+    diameter = float(info["diameter"]) / 1000.0
     points = model_points(root, obj.obj_id)
-    matches, refined_errors, false_positives, rejected, images_seen, results = [], [], 0, 0, 0, []
-    frames = [f for f in bop_frames(root / split, max_images)
-              if any(i.obj_id == obj.obj_id for i in f.instances)]
-    for frame in tqdm(frames, desc="eval", unit="img"):
-        truths = [i for i in frame.instances if i.obj_id == obj.obj_id
-                  and (i.visib_fract is None or i.visib_fract >= min_visibility)]
-        if not truths:
-            continue
+    matches, refined_errors, false_positives, rejected, results, frames = [], [], 0, 0, [], []
+    for frame in tqdm(list(bop_frames(root / split, max_images)), desc="eval", unit="img"):
+        mine = [i for i in frame.instances if i.obj_id == obj.obj_id]
+        seen = [i.visib_fract is None or i.visib_fract >= min_visibility for i in mine]
+        truths = [i for i, s in zip(mine, seen) if s]
+        ignored = [i.T for i, s in zip(mine, seen) if not s]
         image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
         if image is None:
             raise PegasusError(f"{frame.image}: cannot read the image")
@@ -134,7 +180,6 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         started = time.perf_counter()
         estimates = model.estimate(image[..., ::-1].copy(), frame.K, min_score=min_score, depth_m=depth)
         seconds = time.perf_counter() - started
-        images_seen += 1
         for e in estimates:
             T = e.refined if refine else e.T
             if T is not None:
@@ -142,44 +187,57 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
                                 "score": float(e.score), "R": T[:3, :3].ravel().tolist(),
                                 "t": (T[:3, 3] * 1000.0).tolist(), "time": seconds})
         solved = [e for e in estimates if e.T is not None]  # DOPE + PnP alone
-        pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in solved])
+        pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in solved], frame.K, ignored)
         false_positives += extra
+        metric_errors = []
         for i, j, add, adds in pairs:
             est = solved[j] if j is not None else None
             matches.append(Match(frame.scene.name, frame.im_id, truths[i].index, add, adds,
                                  est.score if est else None, est.T if est else None, truths[i].T))
+            metric_errors.append(adds if symmetric else add)
+        frames.append({"scene": frame.scene.name, "im_id": frame.im_id, "image": str(frame.image),
+                       "K": frame.K.tolist(), "false_positives": extra,
+                       "misses": sum(j is None for _, j, _, _ in pairs),
+                       "failed_0_1d": sum(e >= 0.1 * diameter for e in metric_errors),
+                       "truths": [t.T.tolist() for t in truths],
+                       "estimates": [{"T": e.T.tolist(), "score": float(e.score)} for e in solved]})
         if refine:
             refined = [e.refined for e in estimates if e.refined is not None]
             rejected += len(estimates) - len(refined)
-            refined_errors += [(add, adds) for _, _, add, adds in match_instances(points, [t.T for t in truths],
-                                                                                   refined)[0]]
+            refined_errors += [(add, adds) for _, _, add, adds in match_instances(
+                points, [t.T for t in truths], refined, frame.K, ignored)[0]]
     add = np.array([m.add_m for m in matches])
     adds = np.array([m.adds_m for m in matches])
     report = {"model": str(model.path), "backend": model.backend, "data": str(root), "split": split,
-              "object": {"obj_id": obj.obj_id, "name": obj.name, "symmetric": symmetric},
-              "metric": "ADD-S" if symmetric else "ADD", "images": images_seen, "instances": len(matches),
+              "object": {"obj_id": obj.obj_id, "name": obj.name, "symmetric": symmetric, "diameter_m": diameter,
+                         "bbox_min": list(obj.bbox_min), "bbox_size": list(obj.bbox_size)},
+              "metric": "ADD-S" if symmetric else "ADD", "images": len(frames), "instances": len(matches),
               "detected": int(np.isfinite(add).sum()), "misses": int((~np.isfinite(add)).sum()),
-              "false_positives": false_positives, "min_visibility": min_visibility,
-              "result": summary(adds if symmetric else add), "ADD": summary(add), "ADD-S": summary(adds),
+              "false_positives": false_positives,
+              "false_positives_per_image": false_positives / len(frames) if frames else 0.0,
+              "min_visibility": min_visibility, "min_score": min_score,
+              "result": summary(adds if symmetric else add, diameter), "ADD": summary(add, diameter),
+              "ADD-S": summary(adds, diameter),
               "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
                                 "add_m": m.add_m if np.isfinite(m.add_m) else None,
                                 "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
                                for m in matches],
-              "estimates": results}
+              "frames": frames, "estimates": results}
     if refine:
         r_add, r_adds = (np.array([e[k] for e in refined_errors], float).reshape(-1) for k in (0, 1))
         report["refined"] = {"rejected": rejected, "misses": int((~np.isfinite(r_add)).sum()),
-                             "result": summary(r_adds if symmetric else r_add), "ADD": summary(r_add),
-                             "ADD-S": summary(r_adds)}
+                             "result": summary(r_adds if symmetric else r_add, diameter),
+                             "ADD": summary(r_add, diameter), "ADD-S": summary(r_adds, diameter)}
         for entry, (e_add, e_adds) in zip(report["per_instance"], refined_errors):
             entry["refined_add_m"] = e_add if np.isfinite(e_add) else None
             entry["refined_adds_m"] = e_adds if np.isfinite(e_adds) else None
     return report
 
 
-def write_report(report: dict, out: str | Path) -> tuple[Path, Path]:
-    """``out``/eval.json and ``out``/eval_curve.png (pass rate against threshold for ADD and ADD-S, and with
-    depth refinement when the report has it)."""
+def write_report(report: dict, out: str | Path) -> tuple[Path, Path, Path | None]:
+    """``out``/eval.json, ``out``/eval_curve.png (pass rate against threshold for ADD and ADD-S, and with
+    depth refinement when the report has it) and ``out``/eval_worst.png (``write_gallery``; None when no
+    image has a miss, a false positive or a pose beyond 0.1 d)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     json_path = write_atomic(out / "eval.json", lambda f: f.write(json.dumps(report, indent=1).encode()))
@@ -196,4 +254,38 @@ def write_report(report: dict, out: str | Path) -> tuple[Path, Path]:
                                                                                 pass_rates(errors, thresholds))
     chart = line_chart(series, f"{report['object']['name']}: {report['instances']} instances, "
                        f"{report['misses']} missed", "threshold (cm)", "pass rate", y_range=(0, 1))
-    return json_path, images.write_image(out / "eval_curve.png", chart)
+    return json_path, images.write_image(out / "eval_curve.png", chart), write_gallery(report, out / "eval_worst.png")
+
+
+def write_gallery(report: dict, path: str | Path, count: int = GALLERY_IMAGES, width: int = 320) -> Path | None:
+    """The ``count`` images of ``report`` with the most misses, false positives and poses beyond 0.1 d, in
+    a grid of ``width``-px tiles, to ``path`` (PNG): the truths' model boxes in green, the estimates' in
+    magenta with their scores, a caption per tile. None (nothing written) when every image is right."""
+    def badness(f):
+        return f["misses"] + f["false_positives"] + f["failed_0_1d"]
+
+    worst = sorted((f for f in report["frames"] if badness(f) > 0), key=lambda f: -badness(f))[:count]
+    if not worst:
+        return None
+    obj = report["object"]
+    bbox_min, bbox_size = np.array(obj["bbox_min"]), np.array(obj["bbox_size"])
+    tiles, height = [], None
+    for f in worst:
+        image = cv2.imread(f["image"], cv2.IMREAD_COLOR)[..., ::-1].copy()
+        K = np.array(f["K"])
+        for T in f["truths"]:
+            draw_instance(image, K, np.array(T), bbox_min, bbox_size, None, None, TRUTH_COLOUR, "truth")
+        for e in f["estimates"]:
+            draw_instance(image, K, np.array(e["T"]), bbox_min, bbox_size, None, None, ESTIMATE_COLOUR,
+                          f"{e['score']:.2f}")
+        height = height or round(image.shape[0] * width / image.shape[1])
+        tile = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+        caption = (f"{f['scene']}/{f['im_id']}: {f['misses']} missed, {f['false_positives']} false pos., "
+                   f"{f['failed_0_1d']} beyond 0.1d")
+        cv2.rectangle(tile, (0, 0), (width, 16), (0, 0, 0), -1)
+        cv2.putText(tile, caption, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (255, 255, 255), 1, cv2.LINE_AA)
+        tiles.append(tile)
+    columns = min(3, len(tiles))
+    tiles += [np.zeros_like(tiles[0])] * (-len(tiles) % columns)
+    grid = np.vstack([np.hstack(tiles[r:r + columns]) for r in range(0, len(tiles), columns)])
+    return images.write_image(path, grid)

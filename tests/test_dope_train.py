@@ -14,7 +14,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dope_training.checkpoint import load_checkpoint
-from dope_training.evaluate import auc, evaluate, match_instances, pass_rates, write_report
+from dope_training.evaluate import (
+    auc,
+    evaluate,
+    match_instances,
+    pass_rates,
+    recall,
+    summary,
+    write_gallery,
+    write_report,
+)
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, on_centroid_ray
 from dope_training.train import ShardSampler, TrainConfig, train
@@ -49,7 +58,7 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     report = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9)
     assert report["instances"] >= 4 and report["metric"] == "ADD"
     assert all(m["add_m"] is not None and m["add_m"] < 0.02 for m in report["per_instance"]), report["per_instance"]
-    json_path, png = write_report(report, tmp_path / "eval")
+    json_path, png, _ = write_report(report, tmp_path / "eval")
     assert json.loads(json_path.read_text())["ADD"]["pass_2cm"] == 1.0 and cv2.imread(str(png)) is not None
     refined = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9, refine=True)
     assert refined["result"] == report["result"] and refined["refined"]["ADD"]["pass_2cm"] == 1.0, refined["refined"]
@@ -144,17 +153,57 @@ def test_auc_is_the_area_under_the_pass_rate_curve_and_misses_fail():
     thresholds = np.linspace(0, 0.1, 100001)
     assert auc(errors) == pytest.approx(np.trapezoid(pass_rates(errors, thresholds), thresholds) / 0.1, abs=1e-4)
     assert list(pass_rates(errors, (0.02, 0.05, 0.1))) == pytest.approx([2 / 6, 3 / 6, 4 / 6])
-    points = np.random.default_rng(1).normal(size=(50, 3)) * 0.05
-    truths = [np.eye(4), np.eye(4)]
-    truths[1][:3, 3] = [0.3, 0, 0]
-    near, far = np.eye(4), np.eye(4)
-    near[:3, 3], far[:3, 3] = [0.301, 0, 0], [2.0, 0, 0]
-    estimates = [near, far]
-    pairs, extra = match_instances(points, truths, estimates[:1])
-    assert extra == 0 and pairs[0][1] is None and np.isinf(pairs[0][2]) and pairs[1][1] == 0
+
+
+def _at(x, y, z):
+    T = np.eye(4)
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def test_estimates_match_the_instance_they_lie_on_and_every_other_one_is_a_false_positive():
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    points = cuboid_points([-0.05, -0.05, -0.05], [0.1, 0.1, 0.1])  # a 10 cm cube: 50-100 px wide at 0.5-1 m
+    truths = [_at(0, 0, 1.0), _at(0.3, 0, 1.0)]
+    near, deep = _at(0.301, 0, 1.0), _at(0.005, 0, 1.3)  # deep: on the first cube's ray, 30 cm behind it
+    pairs, fp = match_instances(points, truths, [near], K)
+    assert fp == 0 and pairs[0][1] is None and np.isinf(pairs[0][2]) and pairs[1][1] == 0
     assert pairs[1][2] == pytest.approx(0.001)
-    pairs, extra = match_instances(points, truths[1:], estimates)
-    assert extra == 1 and pairs[0][1] == 0
+    # an estimate on an instance matches it whatever its error; one on nothing is one false positive
+    pairs, fp = match_instances(points, truths, [_at(-0.5, 0, 1.0), deep, near], K)
+    assert fp == 1 and [p[1] for p in pairs] == [1, 2] and pairs[0][2] == pytest.approx(np.sqrt(0.005**2 + 0.09))
+    # a far-off estimate does not take an instance: the instance is missed and the estimate counted once
+    pairs, fp = match_instances(points, truths[:1], [_at(0.3, 0, 1.0)], K)
+    assert fp == 1 and pairs[0][1] is None
+    # a duplicate on a matched instance is a false positive; one on an ignored (barely seen) instance is not
+    pairs, fp = match_instances(points, truths[:1], [deep, _at(0, 0.01, 1.0)], K)
+    assert fp == 1 and pairs[0][1] == 1
+    pairs, fp = match_instances(points, truths[:1], [_at(0, 0, 1.0), _at(0.3, 0, 1.0)], K, ignored=[truths[1]])
+    assert fp == 0 and pairs[0][1] == 0
+
+
+def test_recall_at_a_tenth_of_the_diameter_is_bops_strict_threshold():
+    errors = np.array([0.0, 0.0099, 0.0101, 0.02, np.inf])  # diameter 0.1 m: 0.1 d = 1 cm
+    assert recall(errors, 0.01) == pytest.approx(2 / 5) and recall(np.array([0.01]), 0.01) == 0.0  # strict
+    figures = summary(errors, 0.1)
+    assert figures["recall_0_1d"] == pytest.approx(2 / 5)
+    assert summary(errors, 0.3)["recall_0_1d"] == pytest.approx(4 / 5)
+    assert figures["auc_0_10cm"] == pytest.approx(auc(errors)) and recall(np.array([]), 0.01) == 0.0
+
+
+def test_gallery_shows_the_worst_images(tmp_path):
+    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+    image = tmp_path / "a.png"
+    cv2.imwrite(str(image), np.full((48, 64, 3), 90, np.uint8))
+    frame = {"scene": "000000", "im_id": 0, "image": str(image), "K": K.tolist(), "misses": 0, "false_positives": 0,
+             "failed_0_1d": 0, "truths": [_at(0, 0, 1).tolist()], "estimates": [{"T": _at(0.1, 0, 1).tolist(),
+                                                                                  "score": 0.5}]}
+    report = {"object": {"bbox_min": [-0.05] * 3, "bbox_size": [0.1] * 3}, "frames": [frame]}
+    assert write_gallery(report, tmp_path / "worst.png") is None  # nothing wrong: no gallery
+    report["frames"] = [frame, {**frame, "im_id": 1, "false_positives": 2}, {**frame, "im_id": 2, "misses": 1}]
+    png = cv2.imread(str(write_gallery(report, tmp_path / "worst.png", width=160)))
+    assert png.shape == (120 * 1, 160 * 2, 3)  # two tiles of 160 x 120 (the right one is not blank)
+    assert (png[20:, 160:] != 90).any(axis=2).sum() > 50 and (png[20:, :160] != 90).any(axis=2).sum() > 50
 
 
 def test_cli_errors_are_clear(dope_dataset, tmp_path, capsys):

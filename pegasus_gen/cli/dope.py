@@ -83,21 +83,23 @@ def cmd_eval(args) -> int:
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
                       min_score=args.min_score, refine=args.depth)
     out = args.out if args.out is not None else Path(args.model).parent / f"eval_{Path(args.data).name}_{args.split}"
-    json_path, png = write_report(report, out)
+    json_path, png, gallery = write_report(report, out)
     if args.bop_results:
         path = write_bop_results(args.bop_results, report["estimates"])
         print(f"BOP19 results ({len(report['estimates'])} estimates): {path}")
     r = report["result"]
     print(f"{report['object']['name']}: {report['instances']} instances in {report['images']} images, "
-          f"{report['misses']} missed, {report['false_positives']} false positives")
-    print(f"{report['metric']}: AUC(0-10 cm) {r['auc_0_10cm']:.3f}, pass 2/5/10 cm "
+          f"{report['misses']} missed, {report['false_positives']} false positives "
+          f"({report['false_positives_per_image']:.2f} per image)")
+    print(f"{report['metric']}: recall at 0.1 d {r['recall_0_1d']:.3f}, AUC(0-10 cm) {r['auc_0_10cm']:.3f}, "
+          "pass 2/5/10 cm "
           f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f}")
     if "refined" in report:
         r = report["refined"]["result"]
         print(f"{report['metric']} with depth refinement: AUC(0-10 cm) {r['auc_0_10cm']:.3f}, pass 2/5/10 cm "
               f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f} ({report['refined']['rejected']} "
               "estimates rejected)")
-    print(f"report: {json_path}    curve: {png}")
+    print(f"report: {json_path}    curve: {png}" + (f"    worst images: {gallery}" if gallery else ""))
     return 0
 
 
