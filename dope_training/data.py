@@ -77,9 +77,10 @@ def canonical_pose(T_cam_obj: np.ndarray, axis) -> np.ndarray:
 
 
 def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility: float = 0.1,
-             symmetry_axis=None) -> list[Sample]:
+             symmetry_axis=None, keep_empty: bool = False) -> list[Sample]:
     """Samples of every image of a BOP split holding at least one visible instance of ``objects``
-    (obj_ids or names); with ``symmetry_axis`` [3] (object frame), canonical labels (``canonical_pose``)."""
+    (obj_ids or names), and with ``keep_empty`` of the other images too (no keypoints: negative examples);
+    with ``symmetry_axis`` [3] (object frame), canonical labels (``canonical_pose``)."""
     root = Path(root)
     split_dir = root / split
     if not split_dir.is_dir():
@@ -97,7 +98,7 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
                 sample.keypoints.append(project_points(cuboids[inst.obj_id], T, frame.K))
                 sample.obj_ids.append(inst.obj_id)
                 sample.visibility.append(visib)
-        if sample.keypoints:
+        if sample.keypoints or keep_empty:
             samples.append(sample)
     return samples
 
@@ -184,15 +185,18 @@ def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> 
 class DopeDataset(torch.utils.data.Dataset):
     """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [9, S/8, S/8], affinities [16, S/8, S/8]).
 
-    Each item draws its augmentation from a generator seeded by (seed, epoch, index), so runs repeat.
+    Each item draws its augmentation from a generator seeded by (seed, epoch, index), so runs repeat. A crop
+    is centred near one of the sample's instances, or, for a share ``negatives`` of the items and for samples
+    without instances, on a random point of the image: background, clutter and other objects, where the
+    network must learn to find nothing (an instance the crop happens to hold keeps its targets).
     """
 
     def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
-                 stride: int = 8, focal_px: float = 0.0, sigma_px: float = SIGMA_PX):
+                 stride: int = 8, focal_px: float = 0.0, sigma_px: float = SIGMA_PX, negatives: float = 0.0):
         if size % stride:
             raise PegasusError(f"input size {size} must be a multiple of the network stride {stride}")
         self.samples, self.size, self.stride, self.seed, self.focal_px = samples, size, stride, seed, focal_px
-        self.sigma_px = sigma_px
+        self.sigma_px, self.negatives = sigma_px, negatives
         self.augment = augment or Augment()
         self.epoch = 0
 
@@ -208,8 +212,11 @@ class DopeDataset(torch.utils.data.Dataset):
         if image is None:
             raise PegasusError(f"{sample.image}: cannot read the image")
         image = image[..., ::-1]
-        keypoints = np.stack(sample.keypoints)
-        centre = keypoints[rng.integers(len(keypoints)), 8]
+        keypoints = np.stack(sample.keypoints) if sample.keypoints else np.zeros((0, 9, 2))
+        if not len(keypoints) or (self.negatives > 0 and rng.uniform() < self.negatives):
+            centre = rng.uniform((0, 0), image.shape[1::-1])
+        else:
+            centre = keypoints[rng.integers(len(keypoints)), 8]
         base = input_scale(image.shape[:2], sample.K, self.size, self.focal_px)
         M = crop_transform(self.size, base, centre, rng, self.augment)
         border = tuple(int(v) for v in rng.integers(0, 256, 3)) if self.augment.enabled else (0, 0, 0)

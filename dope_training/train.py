@@ -80,7 +80,7 @@ def load_training_samples(cfg: TrainConfig):
             points, normals = surface_samples(root, obj_id)
             found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric,
                                  points.tolist(), normals.tolist(), None if axis is None else list(axis))
-            samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility, axis)
+            samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility, axis, keep_empty=cfg.negatives > 0)
         elif root.is_dir():
             if cfg.object_size is None:
                 raise PegasusError(f"{root}: a DOPE/NDDS folder needs --object-size X Y Z (metres) for the cuboid")
@@ -92,7 +92,7 @@ def load_training_samples(cfg: TrainConfig):
         if target is not None and not np.allclose(target.bbox_size, found.bbox_size, atol=1e-4):
             raise PegasusError(f"{root}: object {cfg.object!r} has another model box than in {cfg.data[0]}")
         target = target or found
-    if not samples:
+    if not any(s.keypoints for s in samples):
         raise PegasusError(f"no image shows {cfg.object!r} at visibility >= {cfg.min_visibility} in {cfg.data}")
     return samples, target
 
@@ -251,11 +251,12 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
         if world > 1 else model
 
     dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
-                          sigma_px=cfg.sigma_px)
+                          sigma_px=cfg.sigma_px, negatives=cfg.negatives)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
     loader_args = dict(batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.loader_workers,
                        pin_memory=device.type == "cuda")
-    still = DopeDataset(samples[:1], cfg.size, Augment(enabled=False), focal_px=cfg.focal_px, sigma_px=cfg.sigma_px)
+    still = DopeDataset([next(s for s in samples if s.keypoints)], cfg.size, Augment(enabled=False),
+                        focal_px=cfg.focal_px, sigma_px=cfg.sigma_px)
     snapshot_crop = still.item(0)[0]
     snapshot_target = still[0][1].numpy()
 

@@ -43,6 +43,9 @@ class TrainConfig(BaseModel):
     sigma_px: float = Field(SIGMA_PX, gt=0.0, description="std of the belief targets' Gaussians, network-input px "
                                                           "(DOPE: 4, half a map cell)")
     min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
+    negatives: float = Field(0.0, ge=0.0, le=1.0, description="share of crops centred on a random point of the image "
+                             "instead of an instance, images without the object included: background and clutter "
+                             "where nothing is to be found (BOP data)")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
                                             "nominal-scale crops around the instances only)")
     device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto: CUDA when torch sees a GPU")

@@ -112,6 +112,33 @@ def test_augmented_crops_carry_their_keypoints_and_plain_borders(tmp_path):
 
 
 
+def test_negative_crops_look_away_from_the_instances_and_keep_the_targets_of_any_they_hold(tmp_path):
+    image = np.full((480, 640, 3), 40, np.uint8)
+    keypoints = np.array([[60.0, 60.0]] * 8 + [[60.0, 60.0]])  # one instance near the top-left corner
+    keypoints[:8] += np.random.default_rng(1).uniform(-8, 8, (8, 2))
+    cv2.imwrite(str(tmp_path / "im.png"), image)
+    sample, empty = Sample(tmp_path / "im.png", np.eye(3), [keypoints], [1], [1.0]), Sample(tmp_path / "im.png",
+                                                                                            np.eye(3))
+    centres = {}
+    for share in (0.0, 1.0):
+        data, centres[share] = DopeDataset([sample], size=128, negatives=share, focal_px=1.0), []  # image scale 1
+        for epoch in range(40):
+            data.epoch = epoch
+            _, moved, M = data.item(0)
+            A = np.vstack([M, [0, 0, 1]])
+            centres[share].append((np.linalg.inv(A) @ [63.5, 63.5, 1])[:2])  # the crop's centre in the image
+            peak, x = data[0][1].numpy()[8].max(), moved[0, 8]
+            if ((x >= 8) & (x < 120)).all():  # the instance is labelled whenever the crop holds it
+                assert peak > 0.3
+            elif ((x < -16) | (x >= 144)).any():
+                assert peak < 0.01
+    near = [np.linalg.norm(c - keypoints[8]) < 60 for c in centres[0.0]]  # 0.2 of the crop at scale 0.75
+    far = [np.linalg.norm(c - keypoints[8]) > 150 for c in centres[1.0]]
+    assert all(near) and np.mean(far) > 0.7  # random points of the image: mostly far from the instance
+    data = DopeDataset([empty], size=128)
+    assert data[0][1].numpy().max() == 0.0  # an image without the object: a crop with nothing to find
+
+
 def test_focal_length_policy_shows_objects_at_the_same_size_from_any_camera(tmp_path):
     # Two cameras, fx 300 and 600 px, see the same 2 cm pair of dots at 0.5 m: 12 and 24 px apart in their
     # images. With focal_px = 450 both crops show them 18 px apart; DOPE's policy (fit the shorter side)
