@@ -1,0 +1,185 @@
+"""From a real BOP dataset to a table: generated training data, one DOPE network per object, scored on the
+dataset's real photos (DOPE alone).
+
+Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 800] [--epochs 30]
+       [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] --out OUT
+
+What it reads of DIR, and nothing else: ``models/obj_{ID:06d}.ply`` (mm, vertex colour) and
+``models/models_info.json`` (diameter), the split's ``scene_camera.json`` (the real camera's K) and image size,
+and for scoring the split's ground truth. Steps, each with its time:
+
+1. Library ``OUT/library``: the built-in environments (built in ``OUT/demo_library``), and each object
+   imported from its BOP model.
+2. One training dataset ``OUT/data`` for all the objects (``--frames`` frames, 8 per scene): every object in
+   every scene (target and clutter of the others), 2-6 procedural distractors, the three built-in environments
+   (half of the scenes repainted with a random texture), generate's shadows and appearance randomisation,
+   cameras ``--distance`` m from the objects at 20-75 degrees elevation, rendered at the recipe's network scale
+   (``dope_training.recipe``) with the real camera's shape; and a synthetic held-out set (another seed, 24
+   frames).
+3. Per object a light network trained with the recipe (``OUT/runs/obj_ID``).
+4. Per object: ``pegasus eval`` figures on the real split (``OUT/eval/obj_ID``: eval.json, the curve and the
+   gallery of the worst images) and on the synthetic held-out set.
+
+Writes ``OUT/real.json``, prints one line per object and ends with one line: ``real: mean ADD(-S) 0.1d recall R,
+AUC A, false positives per image F over N objects``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from dope_training.evaluate import evaluate, write_report
+from dope_training.infer import DopeModel
+from dope_training.recipe import RealCamera, network_focal, train_fields, training_camera
+from dope_training.train import train
+from dope_training.train_config import TrainConfig
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.importers import import_mesh
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.bop import bop_frames
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.io.files import read_json
+
+ENVIRONMENTS = "[wooden_table, tiled_floor, store_shelf]"
+FRAMES_PER_SCENE = 8
+
+
+def real_camera(root: Path, split: str) -> RealCamera:
+    """The split's camera: K of its first image and the image's size (one camera for the split)."""
+    frame = next(bop_frames(root / split, 1), None)
+    if frame is None:
+        raise PegasusError(f"{root / split}: no images")
+    image = cv2.imread(str(frame.image), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise PegasusError(f"{frame.image}: cannot read the image")
+    height, width = image.shape[:2]
+    return RealCamera(frame.K, width, height)
+
+
+def object_infos(root: Path, ids: list[int]) -> dict[int, dict]:
+    """models_info entries of ``ids``; a clear error for a missing model or entry."""
+    info = read_json(root / "models" / "models_info.json")
+    for i in ids:
+        if str(i) not in info or not (root / "models" / f"obj_{i:06d}.ply").is_file():
+            raise PegasusError(f"{root}/models: no obj_{i:06d}.ply with a models_info.json entry")
+    return {i: info[str(i)] for i in ids}
+
+
+def make_dataset(folder: Path, overrides: list[str]) -> Path:
+    """The dataset of ``overrides`` in ``folder``, generated unless a finished one is there."""
+    if not (folder / "finished").is_file():
+        generate(load_config(None, [f"output={folder}", *overrides]), resume=folder.exists())
+        (folder / "finished").write_text("\n".join(overrides))
+    return folder
+
+
+def figures(report: dict) -> dict:
+    """The figures of one ``evaluate`` report that the table shows."""
+    r = report["result"]
+    return {"metric": report["metric"], "recall_0_1d": round(r["recall_0_1d"], 4), "auc": round(r["auc_0_10cm"], 4),
+            "false_positives_per_image": round(report["false_positives_per_image"], 3),
+            "instances": report["instances"], "misses": report["misses"], "images": report["images"]}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--real", required=True, help="BOP dataset root with real photos")
+    parser.add_argument("--split", default="test")
+    parser.add_argument("--objects", required=True, help="obj_ids, comma-separated")
+    parser.add_argument("--frames", type=int, default=800, help="training frames (all objects share them)")
+    parser.add_argument("--epochs", type=int, default=30)
+    parser.add_argument("--distance", type=float, nargs=2, default=(0.4, 1.4), help="camera distance range, m")
+    parser.add_argument("--max-images", type=int, help="real images per scene to score (default: all)")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    root, out = Path(args.real), Path(args.out)
+    try:
+        ids = [int(v) for v in args.objects.split(",")]
+    except ValueError:
+        raise PegasusError(f"--objects {args.objects!r}: comma-separated integer obj_ids expected") from None
+    if args.frames < FRAMES_PER_SCENE or args.epochs < 1 or not 0 < args.distance[0] < args.distance[1] < 20:
+        raise PegasusError(f"--frames >= {FRAMES_PER_SCENE}, --epochs >= 1 and 0 < near < far <= 20 m expected")
+    camera = real_camera(root, args.split)
+    infos = object_infos(root, ids)
+    times, t0 = {}, time.monotonic()
+
+    demo, library = AssetLibrary(out / "demo_library"), AssetLibrary(out / "library")
+    build_demo_library(demo)  # its environments only: its objects' obj_ids may be the real ones'
+    for m in demo.manifests():
+        if m.kind == "environment" and m.name not in library.names():
+            shutil.copytree(demo.asset_path(m.name), library.asset_path(m.name))
+    for i in ids:
+        if f"real_{i}" not in library.names():
+            import_mesh(root / "models" / f"obj_{i:06d}.ply", f"real_{i}", "object", library, obj_id=i, scale=0.001)
+    times["library"] = time.monotonic() - t0
+
+    t0 = time.monotonic()
+    diameters = {i: infos[i]["diameter"] / 1000.0 for i in ids}
+    focal = {i: network_focal(diameters[i], args.distance, camera) for i in ids}
+    cam = training_camera(float(np.median(list(focal.values()))), camera)
+    objects = "[" + ", ".join(f"{{asset: real_{i}, count: [1, 1]}}" for i in ids) + "]"
+    common = [f"library={library.root}", f"environments={ENVIRONMENTS}", f"objects={objects}",
+              f"min_objects={len(ids)}", f"frames_per_scene={FRAMES_PER_SCENE}", "distractors.count=[2, 6]",
+              "appearance.retexture=0.5", f"trajectory.distance=[{args.distance[0]}, {args.distance[1]}]",
+              "trajectory.elevation_deg=[20, 75]", f"device={'cuda' if args.device == 'cuda' else 'cpu'}",
+              *(f"camera.{k}={v}" for k, v in cam.items())]
+    data = make_dataset(out / "data", [*common, f"scenes={args.frames // FRAMES_PER_SCENE}", f"seed={args.seed}"])
+    held_out = make_dataset(out / "held_out", [*common, "scenes=3", f"seed={args.seed + 1000}"])
+    times["generate"] = time.monotonic() - t0
+
+    rows = {}
+    for i in ids:
+        t0 = time.monotonic()
+        run = out / "runs" / f"obj_{i:06d}"
+        if not (run / "last.pt").is_file():
+            train(TrainConfig(data=[str(data)], object=str(i), out=str(run), device=args.device, seed=args.seed,
+                              **train_fields(focal[i], args.epochs)))
+        times[f"train obj {i}"] = time.monotonic() - t0
+        t0 = time.monotonic()
+        model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
+        report = evaluate(model, root, args.split, max_images=args.max_images)
+        write_report(report, out / "eval" / f"obj_{i:06d}")
+        synthetic = evaluate(model, held_out, "train_pbr")
+        write_report(synthetic, out / "eval_synthetic" / f"obj_{i:06d}")
+        times[f"evaluate obj {i}"] = time.monotonic() - t0
+        rows[i] = {"real": figures(report), "synthetic": figures(synthetic), "focal_px": focal[i],
+                   "diameter_m": diameters[i]}
+        r, s = rows[i]["real"], rows[i]["synthetic"]
+        print(f"obj {i}: real {r['metric']} 0.1d recall {r['recall_0_1d']:.3f}, AUC {r['auc']:.3f}, "
+              f"{r['false_positives_per_image']:.2f} false positives per image, {r['misses']} of {r['instances']} "
+              f"missed; synthetic held-out recall {s['recall_0_1d']:.3f}, AUC {s['auc']:.3f}", flush=True)
+
+    mean = {k: float(np.mean([rows[i]["real"][k] for i in ids])) for k in ("recall_0_1d", "auc",
+                                                                          "false_positives_per_image")}
+    doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
+                                                             "height": camera.height},
+           "training_camera": cam, "frames": args.frames, "epochs": args.epochs, "distance_m": list(args.distance),
+           "objects": {str(i): rows[i] for i in ids}, "mean": mean, "seconds": times,
+           "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}"}
+    (out / "real.json").write_text(json.dumps(doc, indent=1))
+    print(f"real: mean ADD(-S) 0.1d recall {mean['recall_0_1d']:.3f}, AUC {mean['auc']:.3f}, false positives per "
+          f"image {mean['false_positives_per_image']:.2f} over {len(ids)} objects")
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except PegasusError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,53 @@
+"""The sim-to-real recipe: training data and training settings for one object seen by one real camera,
+chosen from the object's size and the camera alone (``benchmarks/real.py``; docs/TRAINING.md says what each
+choice did on real photos).
+
+Scale: the network sees every object at one size. ``focal_px`` is chosen so that the object's diameter spans
+``OBJECT_PX`` network-input pixels at the middle of the working distances, capped at the camera's own fx (real
+images are never enlarged), and the training images are rendered at that focal length and the matching image
+size, so they need no resampling. The crop holds the object with context around it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+OBJECT_PX = 40.0  # the object's diameter in network-input pixels at the middle distance
+STRIDE = 8
+CROP_PX = 128
+NEGATIVES = 0.3
+
+
+@dataclass(frozen=True)
+class RealCamera:
+    """A real camera: intrinsics K [3, 3] (px) and image size (px)."""
+
+    K: np.ndarray
+    width: int
+    height: int
+
+
+def network_focal(diameter_m: float, distance_m: tuple[float, float], camera: RealCamera) -> float:
+    """The network-input focal length (px): the object's diameter (m) spans OBJECT_PX at the middle of
+    ``distance_m`` (m), at most the camera's fx."""
+    middle = 0.5 * (distance_m[0] + distance_m[1])
+    return float(min(OBJECT_PX * middle / diameter_m, camera.K[0, 0]))
+
+
+def training_camera(focal_px: float, camera: RealCamera) -> dict:
+    """The generate config's camera for training images at ``focal_px``: the real camera scaled by focal_px /
+    fx (size rounded to a multiple of STRIDE), fields of ``CameraConfig``."""
+    s = focal_px / camera.K[0, 0]
+    width, height = (max(STRIDE, STRIDE * round(v * s / STRIDE)) for v in (camera.width, camera.height))
+    sx, sy = width / camera.width, height / camera.height
+    return {"width": width, "height": height, "fx": round(camera.K[0, 0] * sx, 3), "fy": round(camera.K[1, 1] * sy, 3),
+            "cx": round((camera.K[0, 2] + 0.5) * sx - 0.5, 3), "cy": round((camera.K[1, 2] + 0.5) * sy - 0.5, 3)}
+
+
+def train_fields(focal_px: float, epochs: int) -> dict:
+    """TrainConfig fields of the recipe: the light network, CROP_PX crops at ``focal_px``, the demo's
+    optimiser settings, NEGATIVES of the crops on random points of the image."""
+    return {"variant": "light", "size": CROP_PX, "focal_px": round(focal_px, 3), "epochs": epochs, "lr": 2e-3,
+            "schedule": "cosine", "peak_weight": 10.0, "negatives": NEGATIVES}
