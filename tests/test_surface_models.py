@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 from pegasus_gen.assets.demo import CUPS, frustum_surface
 from pegasus_gen.assets.importers import import_cloud, import_mesh
 from pegasus_gen.assets.library import AssetLibrary
-from pegasus_gen.assets.surface import MAX_EDGE
+from pegasus_gen.assets.surface import MAX_EDGE, mesh_surface
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import render
@@ -77,3 +77,15 @@ def test_a_splat_object_gets_a_surface_on_its_splats_coloured_by_them(tmp_path):
     assert np.median(distance) < 0.002 and asset.surface.is_watertight
     colours = np.asarray(asset.surface.visual.vertex_colors)[:, :3].astype(int)
     assert np.abs(np.median(colours, axis=0) - [40, 160, 60]).max() < 15
+
+
+def test_a_zero_area_face_of_an_imported_mesh_takes_its_corners_mean_colour():
+    vertices = np.array([[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0], [0.02, 0.02, 0], [0.02, 0.02, 0]], float)
+    faces = np.array([[0, 1, 2], [1, 3, 4]])  # the second face has two equal corners: no area
+    colours = np.array([[255, 0, 0, 255], [255, 0, 0, 255], [255, 0, 0, 255], [0, 0, 255, 255], [0, 0, 255, 255]])
+    mesh = trimesh.Trimesh(vertices, faces, vertex_colors=colours, process=False)
+    fine = mesh_surface(mesh)
+    rgb = np.asarray(fine.visual.vertex_colors)[:, :3].astype(float)
+    assert np.isfinite(rgb).all() and (rgb.sum(axis=1) > 0).all()  # no vertex left black by NaN weights
+    # every vertex's colour lies between the corner colours it was made from: red and blue, never anything else
+    assert (rgb[:, 1] == 0).all()

@@ -39,7 +39,9 @@ def mesh_surface(mesh: trimesh.Trimesh, max_edge: float = MAX_EDGE) -> trimesh.T
     face_of_vertex = np.zeros(len(vertices), np.int64)
     face_of_vertex[faces.ravel()] = np.repeat(np.arange(len(faces)), 3)
     source = index[face_of_vertex]
-    bary = trimesh.triangles.points_to_barycentric(np.asarray(mesh.triangles)[source], vertices)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bary = trimesh.triangles.points_to_barycentric(np.asarray(mesh.triangles)[source], vertices)
+    bary = np.where(np.isfinite(bary).all(axis=1, keepdims=True), bary, 1.0 / 3.0)  # a zero-area face: its mean
     return with_colors(fine, surface_colors(mesh, source, np.clip(bary, 0.0, 1.0)))
 
 
