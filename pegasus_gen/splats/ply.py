@@ -10,6 +10,7 @@ Every problem raises :class:`SplatFileError` naming the file and what is wrong.
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,7 @@ _FORMATS = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": "asc
 _REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
              "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
 _HEADER_LIMIT = 1 << 20
+MAX_COORDINATE = 1e6  # a position or scale (file units, meant as metres) beyond this is refused as absurd
 
 
 def _parse_header(path: Path, data: bytes):
@@ -72,7 +74,24 @@ def _parse_header(path: Path, data: bytes):
             raise SplatFileError(path, f"header line {lineno}: unexpected {words[0]!r}")
     if fmt is None:
         raise SplatFileError(path, "PLY header has no 'format' line")
+    _check_counts(path, fmt, elements, len(data) - newline - 1)
     return fmt, elements, newline + 1
+
+
+def _check_counts(path: Path, fmt, elements, data_bytes: int) -> None:
+    """Refuse element counts the data (``data_bytes`` after the header) cannot hold, before anything is
+    allocated: a binary row takes its properties' bytes (a list at least its count), an ASCII row at least
+    one character and one separator per property."""
+    for name, count, props in elements:
+        if fmt == "ascii":
+            row = 2 * len(props)
+        else:
+            row = sum(np.dtype(t).itemsize if t is not None else 1 for _, t in props)
+        if count * row > data_bytes:
+            raise SplatFileError(path, f"data is truncated: element {name!r} declares {count:,} rows, which need "
+                                       f"at least {count * row:,} bytes; the file holds {data_bytes:,} after "
+                                       "its header")
+        data_bytes -= count * row
 
 
 def _read_vertex_table(path: Path, data: bytes, fmt, elements, offset: int) -> np.ndarray:
@@ -113,12 +132,11 @@ def _read_vertex_table(path: Path, data: bytes, fmt, elements, offset: int) -> n
                 table[i] = tuple(float(v) if np.dtype(t).kind == "f" else int(v) for v, (_, t) in zip(values, props))
             except ValueError:
                 raise SplatFileError(path, f"vertex line {i}: not a number in {lines[i][:80]!r}") from None
+            except OverflowError:
+                raise SplatFileError(path, f"vertex line {i}: a value out of its property's range in "
+                                           f"{lines[i][:80]!r}") from None
         return table
-    dtype = np.dtype([(p, fmt + t) for p, t in props])
-    needed = count * dtype.itemsize
-    if len(data) - offset < needed:
-        raise SplatFileError(path, f"data is truncated: {count} vertices need {needed} bytes, "
-                                   f"found {len(data) - offset}")
+    dtype = np.dtype([(p, fmt + t) for p, t in props])  # the data's size is checked by _check_counts
     return np.frombuffer(data, dtype=dtype, count=count, offset=offset)
 
 
@@ -126,6 +144,8 @@ def read_ply(path: str | os.PathLike):
     """Load a 3DGS PLY into a :class:`~pegasus_gen.splats.cloud.SplatCloud` (float32 arrays as stored)."""
     path = Path(path)
     try:
+        if not stat.S_ISREG(path.stat().st_mode):
+            raise SplatFileError(path, "not a regular file")
         data = path.read_bytes()
     except OSError as exc:
         raise SplatFileError(path, f"cannot read file ({exc.strerror or exc})") from None
@@ -147,6 +167,18 @@ def read_ply(path: str | os.PathLike):
             first = int(np.flatnonzero(~np.isfinite(column))[0])
             raise SplatFileError(path, f"non-finite value (NaN or inf) in property {p!r} of vertex {first}")
 
+    too_far = {p: np.abs(table[p]) > MAX_COORDINATE for p in ("x", "y", "z")}
+    too_large = {p: table[p] > np.log(MAX_COORDINATE) for p in ("scale_0", "scale_1", "scale_2")}
+    for p, bad in {**too_far, **too_large}.items():
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            what = "a position" if p in too_far else f"a scale of exp({table[p][i]:g})"
+            raise SplatFileError(path, f"vertex {i}: {p} = {table[p][i]:g} is {what} beyond {MAX_COORDINATE:g} m, "
+                                       "not a splat of a real scene")
+    has_labels = "label" in names and table["label"].dtype.kind in "iu"
+    if has_labels and len(table) and table["label"].max() > np.iinfo(np.int32).max:  # a uint label
+        raise SplatFileError(path, f"label {table['label'].max()} is beyond the 32-bit signed integer range")
+
     norms = np.sqrt(sum(table[p].astype(np.float64) ** 2 for p in ("rot_0", "rot_1", "rot_2", "rot_3")))
     if (norms < 1e-12).any():
         raise SplatFileError(path, f"{int((norms < 1e-12).sum())} splat(s) with a zero rotation quaternion "
@@ -160,8 +192,7 @@ def read_ply(path: str | os.PathLike):
     k_rest = n_rest // 3
     rest = cols(rest_names).reshape(n, 3, k_rest).transpose(0, 2, 1)
     sh = np.concatenate([cols(["f_dc_0", "f_dc_1", "f_dc_2"])[:, None, :], rest], axis=1)
-    labels = table["label"].astype(np.int32) if "label" in names and table["label"].dtype.kind in "iu" \
-        else np.zeros(n, np.int32)
+    labels = table["label"].astype(np.int32) if has_labels else np.zeros(n, np.int32)
     return SplatCloud(
         means=cols(["x", "y", "z"]),
         quats_wxyz=cols(["rot_0", "rot_1", "rot_2", "rot_3"]),
