@@ -6,6 +6,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+import trimesh
 from conftest import random_cloud
 from test_generate import config, dataset_files
 
@@ -15,7 +16,8 @@ from pegasus_gen.dataset.validate import validate
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.sensor import SensorEffects, apply_sensor, disc_kernel, streak_kernel
 from pegasus_gen.splats import sh as shlib
-from pegasus_gen.splats.colour import blend_colour, hue_rotation, transform_colour
+from pegasus_gen.splats.colour import blend_colour, hue_rotation, shade_lambert, splat_normals, transform_colour
+from pegasus_gen.splats.from_mesh import mesh_to_splats
 from pegasus_gen.splats.procedural import random_texture
 
 
@@ -43,6 +45,26 @@ def test_a_blend_moves_the_colour_towards_the_texture_from_every_direction(rng):
     for weight in (0.0, 0.3, 1.0):
         np.testing.assert_allclose(colour(blend_colour(cloud, texture, weight), dirs),
                                    (1 - weight) * colour(cloud, dirs) + weight * texture, atol=1e-4)
+
+
+def test_lambert_shading_lights_the_side_facing_the_light_and_keeps_ambient_behind():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
+    sphere.visual.vertex_colors = np.tile([200, 120, 60, 255], (len(sphere.vertices), 1))
+    cloud = mesh_to_splats(sphere, np.random.default_rng(0), spacing=0.004)
+    centre = np.array([0.3, -0.2, 0.1])
+    cloud = cloud.transformed(np.block([[np.eye(3), centre[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]]))
+    outward = (cloud.means - centre) / np.linalg.norm(cloud.means - centre, axis=1, keepdims=True)
+    assert np.mean(np.sum(splat_normals(cloud, centre) * outward, axis=1) > 0.95) > 0.95  # the sphere's normals
+    light, ambient = np.array([0.0, 0.0, 2.0]), 0.4
+    before, after = colour(cloud, outward), colour(shade_lambert(cloud, centre, light, ambient), outward)
+    facing = np.maximum(outward[:, 2], 0)
+    expected = before * (ambient + (1 - ambient) * 1.5 * facing)[:, None]
+    error = np.abs(after - expected)  # splat normals are the sphere's to a few degrees
+    assert np.median(error) < 0.01 and np.quantile(error, 0.99) < 0.03
+    below = outward[:, 2] < -0.2
+    np.testing.assert_allclose(after[below], ambient * before[below], atol=1e-4)  # away from the light: ambient
+    ratio = after[below] / before[below]
+    assert np.allclose(ratio, ratio[:, :1], atol=1e-4)  # a grey factor: the hue stays
 
 
 def test_a_hue_turn_keeps_grey_and_brightness_and_turns_the_hue():

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pegasus_gen.splats.cloud import SplatCloud
+from pegasus_gen.splats.cloud import SplatCloud, quat_wxyz_to_rotation
 from pegasus_gen.splats.sh import C0
 
 
@@ -41,3 +41,22 @@ def blend_colour(cloud: SplatCloud, rgb: np.ndarray, weight: float) -> SplatClou
     sh[:, 1:] *= 1.0 - weight
     sh[:, 0] = (colour - 0.5) / C0
     return cloud.replace(sh=sh)
+
+
+def splat_normals(cloud: SplatCloud, centre: np.ndarray) -> np.ndarray:
+    """[N, 3] unit normals: each splat's axis of least extent (a surface splat lies flat on its surface), turned
+    to point away from ``centre`` [3] (the object's centre, same frame: right on convex shapes)."""
+    R = quat_wxyz_to_rotation(cloud.quats_wxyz)
+    n = np.take_along_axis(R, np.argmin(cloud.log_scales, axis=1)[:, None, None], axis=2)[..., 0]
+    return np.where(np.sum(n * (cloud.means - centre), axis=1, keepdims=True) < 0, -n, n)
+
+
+def shade_lambert(cloud: SplatCloud, centre: np.ndarray, light: np.ndarray, ambient: float,
+                  gain: float = 1.5) -> SplatCloud:
+    """The cloud lit by a distant light from direction ``light`` [3] (towards the light, same frame): each
+    splat's colour times ambient + (1 - ambient) * gain * max(0, n . light), n its normal (``splat_normals``
+    about ``centre`` [3]); a splat facing away keeps ``ambient`` of its colour."""
+    light = np.asarray(light, np.float64) / np.linalg.norm(light)
+    lit = np.maximum(splat_normals(cloud, np.asarray(centre, np.float64)) @ light, 0.0)
+    factor = ambient + (1.0 - ambient) * gain * lit
+    return transform_colour(cloud, factor[:, None, None] * np.eye(3))
