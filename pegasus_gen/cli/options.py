@@ -6,6 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.splats.ply import MAX_COORDINATE
+
 DEVICES = ("auto", "cpu", "cuda")
 
 
@@ -51,16 +54,29 @@ def add_camera(p) -> None:
     p.add_argument("--elevation", type=float, default=35.0, help="auto-framing elevation, degrees")
 
 
-def check_camera(parser, args) -> None:
-    """Refuse impossible camera flags through the parser (exit code 2, one line)."""
+def check_camera(args) -> None:
+    """Refuse impossible camera flags (PegasusError, one line) before any work: a positive image size whose
+    render fits in memory, a field of view in (0, 180) degrees, focal lengths finite and positive, principal
+    point, --eye and --target finite and within MAX_COORDINATE metres."""
+    from pegasus_gen.render.renderer import check_image_memory
+
     if args.width <= 0 or args.height <= 0:
-        parser.error(f"--width and --height must be positive, got {args.width} x {args.height}")
-    if not 1.0 <= args.fov <= 179.0:
-        parser.error(f"--fov must be within 1..179 degrees, got {args.fov}")
+        raise PegasusError(f"--width and --height must be positive, got {args.width} x {args.height}")
+    check_image_memory(args.width, args.height)
+    if not 0.0 < args.fov < 180.0:
+        raise PegasusError(f"--fov must be between 0 and 180 degrees (exclusive), got {args.fov}")
     for name in ("fx", "fy"):
         value = getattr(args, name)
-        if value is not None and value <= 0:
-            parser.error(f"--{name} must be positive, got {value}")
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise PegasusError(f"--{name} must be a positive number of pixels, got {value}")
+    for name in ("cx", "cy"):
+        value = getattr(args, name)
+        if value is not None and not np.isfinite(value):
+            raise PegasusError(f"--{name} must be a finite number of pixels, got {value}")
+    for name in ("eye", "target"):
+        value = getattr(args, name)
+        if value is not None and not np.all(np.abs(value) <= MAX_COORDINATE):
+            raise PegasusError(f"--{name} must be 3 finite numbers within {MAX_COORDINATE:g} m, got {value}")
 
 
 def camera(args, points: np.ndarray):
@@ -70,10 +86,24 @@ def camera(args, points: np.ndarray):
     K = intrinsics(args.width, args.height, args.fov, args.fx, args.fy, args.cx, args.cy)
     if args.eye is not None:
         target = args.target if args.target is not None else np.median(points, axis=0)
+        if np.array_equal(np.asarray(args.eye, np.float64), target):
+            raise PegasusError(f"--eye {args.eye} is the point looked at (--target, or the splats' median): "
+                               "the camera needs a direction")
         T = look_at(args.eye, target)
     else:
         T = frame_points(points, K, args.width, args.height, args.azimuth, args.elevation)
     return K, T
+
+
+def output_folder(path, flag: str = "--out") -> Path:
+    """The output folder named by ``flag``, refused (PegasusError) before any work when it, or the nearest
+    existing folder above it, is a file."""
+    path = Path(path)
+    existing = next((p for p in (path, *path.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        where = "" if existing == path else f": {existing}"
+        raise PegasusError(f"{flag} {path}{where} is a file, not a folder")
+    return path
 
 
 def write_render_outputs(out_dir: Path, out) -> list[Path]:
@@ -140,8 +170,6 @@ def config_from_args(model, args, **extra):
     """``model`` built from the parsed ``args`` of the same names (and ``extra`` values); a ValidationError
     becomes one PegasusError line naming the flag."""
     from pydantic import ValidationError
-
-    from pegasus_gen.errors import PegasusError
 
     values = {name: getattr(args, name) for name in model.model_fields if hasattr(args, name)}
     try:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -12,6 +11,10 @@ from pegasus_gen.errors import PegasusError
 
 
 def cmd_render(args) -> int:
+    options.check_camera(args)
+    if not all(0.0 <= v <= 1.0 for v in args.background):
+        raise PegasusError(f"--background must be 3 numbers in [0, 1], got {list(args.background)}")
+    out_dir = options.output_folder(args.out)
     from pegasus_gen.render.renderer import render
     from pegasus_gen.splats.ply import read_ply
 
@@ -23,7 +26,7 @@ def cmd_render(args) -> int:
     t0 = time.perf_counter()
     out = render(parts, K, T, args.width, args.height, background=args.background, device=args.device)
     ms = 1000 * (time.perf_counter() - t0)
-    written = options.write_render_outputs(Path(args.out), out)
+    written = options.write_render_outputs(out_dir, out)
     print(f"rendered {len(points):,} splats at {args.width}x{args.height} on {out.backend} in {ms:.0f} ms "
           f"(labels: file order from 0)")
     for path in written:
@@ -52,7 +55,7 @@ def add_commands(sub) -> None:
     p.add_argument("--background", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("R", "G", "B"))
     options.add_device(p)
     options.add_camera(p)
-    p.set_defaults(func=cmd_render, check=options.check_camera)
+    p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("info", help="summarise 3DGS PLY files")
     p.add_argument("ply", nargs="+")

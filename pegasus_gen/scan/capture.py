@@ -21,7 +21,7 @@ from pegasus_gen.assets import demo as demo_assets
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import look_at
 from pegasus_gen.io.images import rgb_to_uint8, write_image
-from pegasus_gen.render.renderer import render
+from pegasus_gen.render.renderer import check_image_memory, render
 from pegasus_gen.scan.markers import aruco_dictionary
 from pegasus_gen.splats import procedural as synthetic
 from pegasus_gen.splats.cloud import SplatCloud
@@ -134,6 +134,9 @@ def write_capture(out: str | os.PathLike, views: int = 36, width: int = 480, hei
     """
     if views < 1:
         raise PegasusError("a capture needs at least one view")
+    if width < 1 or height < 1:
+        raise PegasusError(f"a capture needs a positive image size, got {width} x {height}")
+    check_image_memory(width, height, labels=1)
     rng = np.random.default_rng(seed)
     board = board_splats(np.random.default_rng(1000), markers)  # the same board in every capture
     cup, cup_height = cup_splats(np.random.default_rng(1001))
