@@ -42,9 +42,10 @@ def cmd_validate(args) -> int:
 
 
 def cmd_view(args) -> int:
+    from pegasus_gen.cli.options import output_folder
     from pegasus_gen.dataset.view import view
 
-    out = args.out if args.out is not None else Path(args.dataset) / "view"
+    out = output_folder(args.out if args.out is not None else Path(args.dataset) / "view")
     page = view(args.dataset, out, args.split, args.max_images)
     print(f"gallery: {page}")
     return 0

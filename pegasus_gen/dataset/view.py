@@ -71,6 +71,19 @@ def _missing_note(missing: list[str]) -> str:
     return f'<p style="color:#f88">{html.escape(text)}</p>'
 
 
+def _check_frame(frame) -> None:
+    """Refuse (PegasusError) a frame that cannot be drawn: a camera matrix that is not finite with fx, fy > 0, or a
+    pose that is not finite."""
+    K = frame.K
+    if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise PegasusError(f"{frame.scene / 'scene_camera.json'}: image {frame.im_id}: cam_K {K.ravel().tolist()} is "
+                           "not a camera matrix (finite, fx and fy > 0)")
+    for inst in frame.instances:
+        if not np.all(np.isfinite(inst.T)):
+            raise PegasusError(f"{frame.scene / 'scene_gt.json'}: image {frame.im_id}: instance {inst.index}: "
+                               "cam_R_m2c / cam_t_m2c are not finite")
+
+
 def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images: int = 10) -> Path:
     """Overlays of up to ``max_images`` images per scene written to ``out``/SSSSSS_IIIIII.jpg and a gallery
     ``out``/index.html linking them; returns the gallery's path."""
@@ -80,6 +93,8 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
     boxes = model_boxes(root)
     cards, missing = [], []
     frames = list(bop_frames(root / split, max_images))
+    for frame in frames:
+        _check_frame(frame)
     for frame in tqdm(frames, desc="view", unit="image"):
         image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
         if image is None:
