@@ -1,19 +1,41 @@
-"""The generation config: every knob with its default in one place (typed, validated), from YAML + overrides."""
+"""The generation config: every knob with its default in one place (typed, validated), from YAML + overrides.
+
+Every number is checked where it enters: each float finite (``allow_inf_nan=False`` on every section) and in
+its range, so a config that loads cannot fail later on a value, after files are written.
+"""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Literal, Optional, Union
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import parse_yaml
 from pegasus_gen.render.shadows import ShadowParams
 
+CONFIG_FILE = "pegasus_config.yaml"  # a dataset's record of the config it was made with (and so of its size)
+UINT16_MAX = 65535  # the largest value of a depth PNG
+# a depth PNG must store depths up to this many times the farthest camera distance: the objects and the scene
+# behind them up to as far again
+DEPTH_REACH = 2.0
+
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """A config section: unknown keys refused, every float finite."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class CameraConfig(_Strict):
@@ -27,6 +49,18 @@ class CameraConfig(_Strict):
     cx: Optional[float] = None
     cy: Optional[float] = None
 
+    @model_validator(mode="after")
+    def _intrinsics(self):
+        for name, f, size in (("fx", self.fx, self.width), ("fy", self.fy, self.height)):
+            if f is not None and not 1.0 < math.degrees(2 * math.atan(size / 2 / f)) < 179.0:
+                raise ValueError(f"{name} must give a field of view between 1 and 179 degrees: "
+                                 f"{size / 2 / math.tan(math.radians(89.5)):.3g} < {name} < "
+                                 f"{size / 2 / math.tan(math.radians(0.5)):.6g} px at {size} px")
+        for name, c, size in (("cx", self.cx, self.width), ("cy", self.cy, self.height)):
+            if c is not None and not 0 <= c <= size:
+                raise ValueError(f"{name} must lie in the image: 0 <= {name} <= {size} px")
+        return self
+
 
 class TrajectoryConfig(_Strict):
     """Random key poses on a shell around the objects, interpolated (SLERP + linear) into frames."""
@@ -35,14 +69,14 @@ class TrajectoryConfig(_Strict):
     elevation_deg: tuple[float, float] = (25.0, 65.0)
     azimuth_span_deg: float = Field(default=120.0, ge=0.0, le=360.0)
     key_poses: int = Field(default=3, ge=1, le=100)
-    jitter: float = Field(default=0.03, ge=0.0)  # m of random aim offset
+    jitter: float = Field(default=0.03, ge=0.0, le=1.0)  # m of random aim offset
     # key poses are redrawn until the environment fills this fraction of the view (0: accept any)
     min_view_coverage: float = Field(default=0.97, ge=0.0, le=1.0)
 
     @model_validator(mode="after")
     def _ranges(self):
-        if not 0 < self.distance[0] <= self.distance[1]:
-            raise ValueError("distance must be (min, max) with 0 < min <= max")
+        if not 0 < self.distance[0] <= self.distance[1] <= 20:
+            raise ValueError("distance must be (min, max) with 0 < min <= max <= 20 (m)")
         if not -90 <= self.elevation_deg[0] <= self.elevation_deg[1] <= 90:
             raise ValueError("elevation_deg must be (min, max) within -90..90")
         return self
@@ -151,7 +185,7 @@ class GenerateConfig(_Strict):
     scenes: int = Field(default=4, ge=1, le=100_000)
     frames_per_scene: int = Field(default=10, ge=1, le=1000)
     dynamic: bool = False  # record the objects while they fall instead of after they rest
-    fps: float = Field(default=30.0, gt=0)  # camera frame rate of dynamic scenes
+    fps: float = Field(default=30.0, gt=0, le=1000)  # camera frame rate of dynamic scenes
     camera: CameraConfig = Field(default_factory=CameraConfig)
     shadows: ShadowConfig = Field(default_factory=ShadowConfig)
     appearance: AppearanceConfig = Field(default_factory=AppearanceConfig)
@@ -160,18 +194,35 @@ class GenerateConfig(_Strict):
     device: Literal["auto", "cpu", "cuda"] = "auto"
     image_format: Literal["jpg", "png"] = "jpg"
     jpg_quality: int = Field(default=95, ge=1, le=100)
-    depth_scale: float = Field(default=0.1, gt=0)  # png value * depth_scale = mm (BOP PBR uses 0.1)
-    visib_delta: float = Field(default=0.015, gt=0)  # m, BOP's visibility tolerance
+    # png value * depth_scale = mm (BOP PBR uses 0.1, BOP's real captures 1.0); large enough to store the
+    # scene's depths (see _depth_range)
+    depth_scale: float = Field(default=0.1, gt=0, le=1.0)
+    visib_delta: float = Field(default=0.015, gt=0, le=0.1)  # m, BOP's visibility tolerance
     dope_json: bool = False
     # BOP split folder; "test" also writes test_targets_bop19.json (the instances at visib_fract >= 0.1)
     split: Literal["train_pbr", "val", "test"] = "train_pbr"
     # the dataset's name in bop_toolkit (its folder under the toolkit's datasets_path); COCO's supercategory
     dataset_name: str = Field(default="pegasus", pattern=r"^[A-Za-z0-9_-]+$")
-    seed: int = 0
+    seed: int = Field(default=0, ge=0)
     workers: int = Field(default=1, ge=1, le=256)
     # run scenes as Ray tasks: "auto" (the running cluster), "local" (a private instance with `workers` CPUs)
     # or a cluster address (HEAD:6379, ray://HEAD:10001); None: worker processes on this machine
     ray: Optional[str] = Field(default=None, min_length=1)
+
+    @field_validator("depth_scale")
+    @classmethod
+    def _depth_range(cls, depth_scale: float, info: ValidationInfo) -> float:
+        """A uint16 depth PNG stores up to 65535 x ``depth_scale`` mm: that must reach DEPTH_REACH x the
+        trajectory's farthest camera distance, or the scene's depth would be clipped."""
+        trajectory = info.data.get("trajectory")
+        if trajectory is not None:
+            needed_m, stored_m = DEPTH_REACH * trajectory.distance[1], UINT16_MAX * depth_scale / 1000
+            if stored_m < needed_m:
+                raise ValueError(f"{depth_scale:g} mm per unit stores depths up to {stored_m:.3g} m "
+                                 f"in a uint16 PNG; the scene needs {needed_m:.3g} m ({DEPTH_REACH:g} x "
+                                 f"trajectory.distance max): use depth_scale >= "
+                                 f"{math.ceil(needed_m * 1e6 / UINT16_MAX) / 1000:g}")
+        return depth_scale
 
 
 def _set(tree: dict, dotted: str, value) -> None:
