@@ -7,8 +7,9 @@ Layout (BOP train_pbr style)::
     OUTPUT/SPLIT/SSSSSS/{rgb,depth,mask,mask_visib}/...  scene_camera.json scene_gt.json scene_gt_info.json
 
     OUTPUT/SPLIT/SSSSSS/scene_gt_coco.json  (and rgb/IIIIII.json, DOPE/NDDS, with ``dope_json``)
-    OUTPUT/pegasus_config.yaml  (the config the dataset was made with, and its assets' SHA-256)
-    OUTPUT/.lock  (held by the run writing the dataset: a second writer is refused)
+    OUTPUT/pegasus_config.yaml  (the config the dataset was made with, so the scenes it holds when complete,
+                                 and its assets' SHA-256; written before the first scene)
+    OUTPUT/.lock  (while a run writes the dataset: a second writer is refused)
     OUTPUT/test_targets_bop19.json  (split test only)
 
 SPLIT is ``train_pbr`` (default), ``val`` or ``test``.
@@ -50,7 +51,7 @@ from pegasus_gen.dataset.appearance import (
     object_colour_transforms,
 )
 from pegasus_gen.dataset.coco import CocoInstance, scene_coco
-from pegasus_gen.dataset.config import GenerateConfig
+from pegasus_gen.dataset.config import CONFIG_FILE, GenerateConfig
 from pegasus_gen.dataset.distractors import Distractor, make_distractor
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
 from pegasus_gen.dataset.models import eval_model, models_info_entry, write_model_ply
@@ -68,7 +69,6 @@ from pegasus_gen.render.shadows import contact_shadows
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.colour import blend_colour, transform_colour
 
-CONFIG_FILE = "pegasus_config.yaml"
 # random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
 # switching shadows or randomisation on changes no object, pose or camera
 SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM = 1, 2, 3, 4
@@ -407,18 +407,26 @@ def _differences(a, b, prefix="") -> list[str]:
     return [prefix.rstrip(".")] if a != b else []
 
 
+def check_output(out: Path, resume: bool) -> None:
+    """Refuse to mix datasets, on what the folder alone shows: a non-empty ``out`` needs ``resume`` and a
+    CONFIG_FILE (a dataset made by pegasus generate). Checked before the lock is taken (a refused run leaves
+    nothing behind) and again under it."""
+    if not out.is_dir() or not any(p.name != LOCK_FILE for p in out.iterdir()):
+        return
+    if not resume:
+        raise PegasusError(f"{out} is not empty; pass --resume to continue the dataset there, or choose another output")
+    if not (out / CONFIG_FILE).is_file():
+        raise PegasusError(f"{out}: no {CONFIG_FILE}, so this is not a dataset made by pegasus generate; "
+                           "choose another output")
+
+
 def prepare_output(out: Path, cfg: GenerateConfig, assets: Assets, resume: bool) -> None:
-    """Refuse to mix datasets: a non-empty ``out`` needs ``resume``, the config it was made with (keys in
-    RESUMABLE_KEYS excepted) and the same asset files. Records the config and the assets' fingerprints in a
-    new dataset."""
+    """Under the output's lock: ``check_output``, then a resume needs the config the dataset was made with
+    (keys in RESUMABLE_KEYS excepted) and the same asset files. Records the config (the scenes it holds when
+    complete among it) and the assets' fingerprints in a new dataset."""
+    check_output(out, resume)
     record = out / CONFIG_FILE
-    if any(p.name != LOCK_FILE for p in out.iterdir()):
-        if not resume:
-            raise PegasusError(f"{out} is not empty; pass --resume to continue the dataset there, "
-                               "or choose another output")
-        if not record.is_file():
-            raise PegasusError(f"{out}: no {CONFIG_FILE}, so this is not a dataset made by pegasus generate; "
-                               "choose another output")
+    if record.is_file():
         stored = parse_yaml(record.read_text(errors="replace"), f"{record} (so this dataset cannot be resumed)")
         if not isinstance(stored, dict):
             raise PegasusError(f"{record}: not a generate config (a YAML mapping); this dataset cannot be resumed")
@@ -489,6 +497,7 @@ def generate(cfg: GenerateConfig, resume: bool = False) -> Path:
     already in a matching dataset are kept and only the missing ones are made."""
     assets = load_assets(cfg)  # all checks before the output folder is touched
     out = Path(cfg.output)
+    check_output(out, resume)
     with ray_session(cfg.ray, cfg.workers), FolderLock(out, "pegasus generate"):
         prepare_output(out, cfg, assets, resume)
         return _generate(out, cfg, assets)
