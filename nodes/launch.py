@@ -123,10 +123,17 @@ def find_launch_file(file: str | Path) -> Path:
 
 
 def load_description(path: str | Path) -> LaunchDescription:
+    """The LaunchDescription of a launch file (a path or an installed name); a file that is not Python, or
+    does not compile, is a PegasusError."""
     path = find_launch_file(path)
+    if path.suffix != ".py":
+        raise PegasusError(f"{path}: not a launch file (a Python file, *.launch.py)")
     spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    try:
+        spec.loader.exec_module(module)
+    except SyntaxError as exc:
+        raise PegasusError(f"{path}: line {exc.lineno}: {exc.msg} (the launch file is not valid Python)") from None
     if not hasattr(module, "generate_launch_description"):
         raise PegasusError(f"{path}: has no generate_launch_description()")
     return module.generate_launch_description()
