@@ -12,6 +12,9 @@ visible pixels agrees with the posed model: median absolute difference <= ``max_
 ``depth_px`` pixel footprints (the object's median depth / fx) when that is more. A rendered pixel's depth
 blends the surface over the pixel's area, front-most first, so on a slanted surface it lies up to about a
 footprint in front: at 160x120 and 1 m that is 7 mm, at 320x240 half of it.
+
+A dataset made by pegasus generate records the scenes it holds when complete (``pegasus_config.yaml``); one
+that holds fewer (a run that was killed or failed) is reported, however good its scenes are.
 """
 
 from __future__ import annotations
@@ -24,8 +27,9 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
+from pegasus_gen.dataset.config import CONFIG_FILE
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.io.files import read_json
+from pegasus_gen.io.files import parse_yaml, read_json
 from pegasus_gen.render.raycast import MeshRaycaster
 
 GT_INFO_KEYS = ("bbox_obj", "bbox_visib", "px_count_all", "px_count_valid", "px_count_visib", "visib_fract")
@@ -195,11 +199,38 @@ def coco_instance_count(infos: dict) -> int:
     return sum(1 for entries in infos.values() for entry in entries if entry.get("px_count_visib", 0) > 0)
 
 
+def _check_scene_count(root: Path, split: str, present: set[str], report: Report) -> None:
+    """Report the scenes ``CONFIG_FILE`` (when there: BOP datasets from elsewhere have none) says ``split`` holds
+    and ``present`` (the scene folder names) lacks."""
+    record = root / CONFIG_FILE
+    if not record.is_file():
+        return
+    try:
+        stored = parse_yaml(record.read_text(errors="replace"), CONFIG_FILE)
+    except PegasusError as exc:
+        report.problems.append(f"{exc}: the number of scenes the dataset should hold is unknown")
+        return
+    if not isinstance(stored, dict) or type(stored.get("scenes")) is not int:
+        report.problems.append(f"{CONFIG_FILE}: no scenes count, so the number of scenes the dataset should hold "
+                               "is unknown")
+        return
+    if stored.get("split") != split:
+        return
+    missing = [f"{s:06d}" for s in range(stored["scenes"]) if f"{s:06d}" not in present]
+    if missing:
+        shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
+        report.problems.append(f"{split}: {len(missing)} of the {stored['scenes']} scenes in {CONFIG_FILE} are "
+                               f"missing ({shown}); finish the dataset with pegasus generate --resume")
+
+
 def validate(root: str | Path, split: str = "train_pbr", *, min_mask_px: int = 500, min_iou: float = 0.9,
              boundary_px: int = 1, max_depth_mm: float = 5.0, depth_px: float = 2.0, min_visible_px: int = 100,
              max_images: int | None = None) -> Report:
-    """Check the BOP dataset at ``root`` (see the module docstring); ``max_images`` per scene limits the work."""
+    """Check the BOP dataset at ``root`` (see the module docstring); ``max_images`` (>= 1) per scene limits the
+    work."""
     root = Path(root)
+    if max_images is not None and max_images < 1:
+        raise PegasusError(f"--max-images {max_images}: check at least 1 image per scene")
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset (or choose --split)")
     report = Report()
@@ -212,6 +243,7 @@ def validate(root: str | Path, split: str = "train_pbr", *, min_mask_px: int = 5
     for leftover in (p for p in scenes if p.name.startswith(".")):
         report.problems.append(f"{leftover.name}: an unfinished scene folder (a killed run; resume to finish it)")
     scenes = [p for p in scenes if not p.name.startswith(".")]
+    _check_scene_count(root, split, {p.name for p in scenes}, report)
     if not scenes:
         report.problems.append(f"{split}: no scenes")
     for scene in tqdm(scenes, desc="validate", unit="scene"):
