@@ -45,7 +45,9 @@ def add_commands(sub) -> None:
         "kind", "name", "obj_id", "aruco_size", "aruco_dict", "scale", "intrinsics", "matcher", "masks",
         "second_images", "second_masks", "preset", "iterations", "train_size", "device"),
         kind={"required": True}, name={"required": True}, intrinsics={"metavar": ("FX", "FY", "CX", "CY")})
-    p.add_argument("--work", help="work folder for SfM, report and previews (default out/scan/NAME)")
+    p.add_argument("--work", help="work folder for SfM (sfm/), the trained scene, report and previews (default "
+                                  "out/scan/NAME); refused when it already holds any of them (a scan deletes "
+                                  "nothing it did not make: remove an earlier scan's files, or choose another)")
     options.add_library(p)
     options.add_config_flags(p, ScanOptions, ("seed", "overwrite"))
     p.set_defaults(func=cmd_scan)

@@ -7,10 +7,12 @@ Steps (``run_scan``): :func:`find_markers` (ArUco detection; fails early when me
 training, :mod:`pegasus_gen.scan.training`) -> :func:`write_asset` (cropped to the object; through
 :func:`pegasus_gen.assets.importers.import_cloud`: collision mesh, URDF, manifest).
 
-Everything except the asset goes to the work folder: ``sfm/`` (COLMAP database and model),
-``splats_aligned.ply`` (the trained scene, metric z-up), ``scan_report.json`` (a :class:`ScanReport`),
-``training_loss.png`` and ``preview.png`` (held-out photos above their renders). The asset is written last,
-so a failure leaves no asset. Progress goes to the ``logging`` module (INFO).
+Everything except the asset goes to the work folder (``WORK_FILES``): ``sfm/`` (COLMAP database and model;
+``halves/`` and ``sfm_halves/`` for a two-part scan), ``splats_aligned.ply`` (the trained scene, metric z-up),
+``scan_report.json`` (a :class:`ScanReport`), ``training_loss.png`` and ``preview.png`` (held-out photos above
+their renders). A scan deletes and overwrites nothing it did not make: it refuses a work folder that already
+holds any of these, and a failed scan leaves the ones it wrote for inspection. The asset is written last, so a
+failure leaves no asset. Progress goes to the ``logging`` module (INFO).
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ OBJECT_MIN_HEIGHT = 0.004  # m: SfM points this far above the support plane are 
 OBJECT_CLUSTER_EPS = 0.02  # m: DBSCAN neighbourhood joining object points into one cluster
 OBJECT_MARGIN = 0.01  # m added around the object's extent when cropping the trained splats
 CROP_MIN_HEIGHT = 0.002  # m: trained splats below this height belong to the support plane
+WORK_FILES = ("sfm", "halves", "sfm_halves", "splats_aligned.ply", "scan_report.json", "training_loss.png",
+              "preview.png")  # what a scan writes in its work folder
 
 
 def check_inputs(options: ScanOptions, names: list[str], library: AssetLibrary) -> None:
@@ -57,6 +61,17 @@ def check_inputs(options: ScanOptions, names: list[str], library: AssetLibrary) 
         if missing:
             raise PegasusError(f"{folder}: no mask for {len(missing)} photo(s), e.g. {missing[0]} "
                                "(masks are named like the photos, .png allowed)")
+
+
+def check_work_folder(work_dir: Path) -> None:
+    """Refuse a ``work_dir`` that is not a folder, or that holds any of ``WORK_FILES`` (an earlier scan's, or
+    someone's): a scan replaces nothing it did not make."""
+    if work_dir.exists() and not work_dir.is_dir():
+        raise PegasusError(f"{work_dir}: exists and is not a folder (--work)")
+    found = [name for name in WORK_FILES if (work_dir / name).exists() or (work_dir / name).is_symlink()]
+    if found:
+        raise PegasusError(f"{work_dir} already holds {', '.join(found)} (an earlier scan's?); a scan replaces "
+                           "nothing it did not make: remove them or choose another --work")
 
 
 def _mask_path(mask_dir: Path, name: str) -> Path | None:
@@ -219,9 +234,7 @@ def register_second_half(rec: sfm.SfmResult, S_frame_rec: np.ndarray, options: S
     """
     first_dir, second_dir = rec.image_dir, Path(options.second_images)
     second_names = sfm.list_images(second_dir)
-    combined = work_dir / "halves"
-    if combined.exists():
-        shutil.rmtree(combined)
+    combined = work_dir / "halves"  # new: run_scan refuses a work folder that holds one
     (combined / "images").mkdir(parents=True)
     (combined / "masks").mkdir()
     for prefix, folder, mask_folder, names in (("first_", first_dir, options.masks, rec.input_names),
@@ -407,17 +420,19 @@ def write_asset(cloud: SplatCloud, alignment: dict, options: ScanOptions, librar
 def run_scan(image_dir: str | Path, work_dir: str | Path, options: ScanOptions,
              library: AssetLibrary | None = None) -> ScanReport:
     """Photos in ``image_dir`` -> asset ``options.name`` in ``library``; returns the scan report (also
-    written to ``work_dir``/scan_report.json). Raises PegasusError with a clear message on bad input."""
+    written to ``work_dir``/scan_report.json; ``check_work_folder`` says which work folders are refused).
+    Raises PegasusError with a clear message on bad input."""
     image_dir, work_dir = Path(image_dir), Path(work_dir)
     library = library or AssetLibrary()
     names = sfm.list_images(image_dir)
     check_inputs(options, names, library)
+    check_work_folder(work_dir)
     rng = np.random.default_rng(options.seed)
-    work_dir.mkdir(parents=True, exist_ok=True)
     timings = ScanTimings()
     with timings.timed("total"):
         with timings.timed("markers"):
             detections, marker_report = find_markers(image_dir, names, options)
+        work_dir.mkdir(parents=True, exist_ok=True)
         with timings.timed("sfm"):
             rec, quality = structure_from_motion(image_dir, work_dir, names, options)
         S, scale, alignment = metric_frame(rec, detections, options, rng)

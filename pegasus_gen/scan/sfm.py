@@ -102,7 +102,8 @@ def reconstruct(image_dir: str | Path, work_dir: str | Path, names: list[str] | 
                 max_image_size: int = 1600, seed: int = 0) -> SfmResult:
     """Run SfM on the images of ``image_dir`` (all, or ``names``) and keep the largest reconstruction.
 
-    work_dir: gets database.db and sparse/ (COLMAP's model files, written again after the run).
+    work_dir: a new or empty folder; gets database.db and sparse/ (COLMAP's model files, written again after
+    the run).
     matcher: "exhaustive" (every pair: small sets) or "sequential" (neighbours in name order plus
     loop detection off: large video-like sets, no vocabulary needed).
     intrinsics: (fx, fy, cx, cy) in pixels, OpenCV convention, when the camera is calibrated: one shared
@@ -118,8 +119,9 @@ def reconstruct(image_dir: str | Path, work_dir: str | Path, names: list[str] | 
         raise PegasusError(f"{image_dir}: {len(names)} image(s); structure from motion needs at least 3 "
                            "overlapping photos (a scan usually has 30-200)")
     work_dir = Path(work_dir)
-    if work_dir.exists():
-        shutil.rmtree(work_dir)
+    if work_dir.exists() and (not work_dir.is_dir() or any(work_dir.iterdir())):
+        raise PegasusError(f"{work_dir}: exists and is not an empty folder; structure from motion writes a new "
+                           "one (it deletes nothing it did not make)")
     (work_dir / "sparse").mkdir(parents=True)
     database = work_dir / "database.db"
     pycolmap.set_random_seed(seed)
