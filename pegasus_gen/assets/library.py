@@ -298,8 +298,9 @@ class AssetLibrary:
         return [read_manifest(self.root / name / MANIFEST) for name in self.names()]
 
     def get(self, key: str | int) -> Asset:
-        """The asset named ``key``, or the object with obj_id ``key`` (an int or a digit string)."""
-        if isinstance(key, str) and (self.root / key / MANIFEST).is_file():
+        """The asset named ``key`` (the name checked: ``check_asset_name``), or the object with obj_id ``key``
+        (an int or a digit string)."""
+        if isinstance(key, str) and (self.asset_path(key) / MANIFEST).is_file():
             return load_asset(self.root / key)
         if isinstance(key, int) or (isinstance(key, str) and key.isdigit()):
             for m in self.manifests():
