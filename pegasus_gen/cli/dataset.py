@@ -68,7 +68,7 @@ def add_commands(sub) -> None:
     p = sub.add_parser("validate", help="check a BOP dataset against its models (masks, depth, format)")
     p.add_argument("dataset")
     p.add_argument("--split", default="train_pbr")
-    p.add_argument("--max-images", type=int, help="check at most this many images per scene")
+    p.add_argument("--max-images", type=int, help="check at most this many images per scene (at least 1)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("view", help="overlay masks, 3D boxes and axes on a BOP dataset's images; HTML gallery")
