@@ -12,6 +12,7 @@ from plyfile import PlyData
 
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
+from pegasus_gen.dataset.validate import validate
 from pegasus_gen.errors import PegasusError
 
 
@@ -97,6 +98,7 @@ def test_resume_after_kill_9_gives_the_same_dataset(library, tmp_path):
     proc.kill()  # SIGKILL: no cleanup runs
     proc.wait()
     assert (split / "000000").is_dir() and not (split / "000002").exists()  # killed mid-run
+    assert any("scenes in pegasus_config.yaml are missing" in p for p in validate(tmp_path / "killed").problems)
     resumed = generate(load_config(None, args), resume=True)
     full = generate(load_config(None, [a.replace("killed", "full") for a in args]))
     assert not [p for p in split.iterdir() if p.name.startswith(".")]  # no debris left
