@@ -58,6 +58,15 @@ def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> 
     return ids
 
 
+def check_K(K: np.ndarray, where: str) -> None:
+    """A PegasusError naming ``where`` unless K [3, 3] (px) is a pinhole camera's: fx, fy > 0, every entry
+    finite, last row (0, 0, 1)."""
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0 or (K[2] != (0, 0, 1)).any():
+        raise PegasusError(f"{where}: K {np.round(K, 3).tolist()} is not a camera's (fx, fy > 0, all finite, "
+                           "last row 0 0 1)")
+
+
 def canonical_pose(T_cam_obj: np.ndarray, axis) -> np.ndarray:
     """T_cam_obj [4, 4] turned about ``axis`` [3] (object frame, through its origin) so that the reference
     direction (see the module docstring) points at the camera; unchanged when the camera looks along the axis."""
@@ -90,12 +99,19 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
     cuboids = {k: cuboid_points(*boxes[k]) for k in wanted}
     samples = []
     for frame in bop_frames(split_dir):
+        where = f"{frame.scene}: image {frame.im_id}"
+        check_K(frame.K, f"{where} (scene_camera.json)")
         sample = Sample(frame.image, frame.K)
         for inst in frame.instances:
             visib = 1.0 if inst.visib_fract is None else inst.visib_fract
             if inst.obj_id in wanted and visib >= min_visibility:
                 T = inst.T if symmetry_axis is None else canonical_pose(inst.T, symmetry_axis)
-                sample.keypoints.append(project_points(cuboids[inst.obj_id], T, frame.K))
+                keypoints = project_points(cuboids[inst.obj_id], T, frame.K)
+                if not np.isfinite(keypoints).all():
+                    raise PegasusError(f"{where} (scene_gt.json), instance {inst.index}: the pose "
+                                       f"{np.round(inst.T[:3], 4).tolist()} does not project the object to finite "
+                                       "pixels (not finite, or its centre on the camera plane)")
+                sample.keypoints.append(keypoints)
                 sample.obj_ids.append(inst.obj_id)
                 sample.visibility.append(visib)
         if sample.keypoints or keep_empty:
@@ -117,11 +133,14 @@ def load_ndds(folder: str | Path, classes, min_visibility: float = 0.1) -> list[
         intr = doc.get("camera_data", {}).get("intrinsics", {})
         K = np.array([[intr.get("fx", 0), 0, intr.get("cx", 0)], [0, intr.get("fy", 0), intr.get("cy", 0)], [0, 0, 1]],
                      dtype=np.float64)
+        check_K(K, f"{doc_path} (camera_data.intrinsics)")
         sample = Sample(image, K)
         for obj in doc["objects"]:
             points = np.asarray(obj.get("projected_cuboid", []), dtype=np.float64)
             if obj.get("class") not in ids or points.shape != (9, 2) or obj.get("visibility", 1) < min_visibility:
                 continue
+            if not np.isfinite(points).all():
+                raise PegasusError(f"{doc_path}: the projected_cuboid of a {obj['class']!r} is not finite")
             sample.keypoints.append(points)
             sample.obj_ids.append(ids[obj["class"]])
             sample.visibility.append(float(obj.get("visibility", 1)))
