@@ -13,11 +13,14 @@ inside the network: its input is RGB in 0..1.
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
 from torch import nn
+
+from pegasus_gen.errors import PegasusError
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -105,9 +108,58 @@ class DopeNetwork(nn.Module):
 
 def build_model(config: dict | ModelConfig) -> DopeNetwork:
     """A network from a ModelConfig or its dict (as stored in a checkpoint)."""
-    if isinstance(config, dict):
-        config = ModelConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in config.items()})
-    return DopeNetwork(config)
+    return DopeNetwork(_from_dict(config) if isinstance(config, dict) else config)
+
+
+def _from_dict(doc: dict) -> ModelConfig:
+    return ModelConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in doc.items()})
+
+
+def config_from_dict(doc, where: str) -> ModelConfig:
+    """The ModelConfig of ``doc`` (its dict, as checkpoints and ONNX metadata store it), checked by building its
+    network on torch's meta device (nothing allocated); a PegasusError naming ``where`` when it describes no
+    DOPE network."""
+    try:
+        config = _from_dict(doc)
+        with torch.device("meta"):
+            DopeNetwork(config)
+    except (TypeError, ValueError, AttributeError, ArithmeticError, RuntimeError) as exc:
+        raise PegasusError(f"{where}: not a DOPE model config ({exc})") from None
+    return config
+
+
+def memory_estimate(config: ModelConfig, height: int, width: int, batch: int = 1, training: bool = False) -> int:
+    """Bytes (float32) the network needs for ``batch`` images [3, height, width] (px): training keeps every
+    layer's output for the backward pass and as many gradients (2 x their sum), and the weights with their
+    gradients and Adam's two moments (4 x the weights); inference holds about a layer's input and output at
+    once (2 x the largest output) and the weights. Layer outputs come from running the network on torch's meta
+    device (shapes only, nothing allocated); in-place layers, which reuse their input, are not counted."""
+    with torch.device("meta"):
+        model = DopeNetwork(config).eval()
+    outputs = []
+    for module in model.modules():
+        if not list(module.children()) and not getattr(module, "inplace", False):
+            module.register_forward_hook(lambda _module, _inputs, output: outputs.append(output.numel()))
+    with torch.no_grad():
+        model(torch.empty(1, 3, height, width, device="meta"))
+    weights = sum(p.numel() for p in model.parameters())
+    floats = 2 * batch * sum(outputs) + 4 * weights if training else 2 * batch * max(outputs) + weights
+    return 4 * floats
+
+
+def memory_limit(device: torch.device) -> int:
+    """Bytes of memory ``device`` has in all: the GPU's for CUDA, else the machine's RAM."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_properties(device).total_memory
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def check_memory(needed: int, device: torch.device, what: str) -> None:
+    """A PegasusError naming ``what`` when ``needed`` bytes exceed ``memory_limit(device)``."""
+    limit = memory_limit(device)
+    if needed > limit:
+        raise PegasusError(f"{what} needs about {needed / 2**30:.3g} GiB of memory, more than the "
+                           f"{limit / 2**30:.3g} GiB of this machine's {device.type.upper()}")
 
 
 def model_config(model: DopeNetwork) -> dict:

@@ -1,11 +1,12 @@
 """Checkpoints are read as data only: the project's own load, a crafted one cannot run code."""
 
 import os
+from dataclasses import asdict
 
 import pytest
 import torch
 
-from dope_training.checkpoint import CHECKPOINT_FORMAT, load_checkpoint, model_from_checkpoint
+from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint, model_from_checkpoint
 from dope_training.model import ModelConfig, build_model, model_config
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
@@ -24,8 +25,9 @@ class Payload:
 def test_a_checkpoint_that_would_run_code_is_refused_without_running_it(tmp_path, capsys):
     marker = tmp_path / "code_ran"
     model = build_model(ModelConfig.of("light"))
-    crafted = {"format": CHECKPOINT_FORMAT, "model": model.state_dict(), "model_config": model_config(model),
-               "payload": Payload(marker)}
+    crafted = {"format": CHECKPOINT_FORMAT, "model": model.state_dict(), "optimizer": {}, "scaler": {}, "epoch": 1,
+               "step": 1, "model_config": model_config(model), "train_config": {"size": 64},
+               "object": asdict(TargetObject(1, "cup", [-0.05] * 3, [0.1] * 3)), "stride": 8, "payload": Payload(marker)}
     torch.save(crafted, tmp_path / "crafted.pt")
     with pytest.raises(PegasusError, match="not a readable checkpoint"):
         load_checkpoint(tmp_path / "crafted.pt")
