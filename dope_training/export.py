@@ -13,6 +13,7 @@ at, ``data.input_scale``, which inference reproduces).
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 import warnings
@@ -59,8 +60,14 @@ class _LastStage(nn.Module):
 
 def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17, metadata: dict[str, str] | None = None) -> Path:
     """Write ``model`` as an ONNX file at ``path`` (via a temporary file in the same folder, renamed when
-    complete and checked) with ``metadata`` added to the standard keys; returns the path."""
+    complete and checked) with ``metadata`` added to the standard keys; returns the path. A network whose
+    outputs are not finite (NaN or inf weights) is refused before anything is written."""
     path = Path(path)
+    with _evaluating(model):
+        outputs = model(torch.zeros(1, 3, 64, 64))[-1]
+    if not all(torch.isfinite(t).all() for t in outputs):
+        raise PegasusError(f"{path}: not written: the network's outputs are not finite (NaN or inf weights: was its "
+                           "training loss finite?)")
     config = model_config(model)
     maps = {0: "batch", 2: "map_height", 3: "map_width"}
     fd, tmp = tempfile.mkstemp(suffix=".onnx.tmp", dir=path.parent)
@@ -91,7 +98,8 @@ def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17, metadata:
 
 def check_parity(model: DopeNetwork, path: str | Path, sizes, seed: int = 0) -> float:
     """Max abs difference between onnxruntime (CPU) on the file at ``path`` and torch on ``model``, over both
-    outputs, for random inputs of each (batch, height, width) in ``sizes``."""
+    outputs, for random inputs of each (batch, height, width) in ``sizes``; inf when either gives a value that
+    is not finite."""
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(seed)
     worst = 0.0
@@ -100,6 +108,8 @@ def check_parity(model: DopeNetwork, path: str | Path, sizes, seed: int = 0) -> 
         with _evaluating(model):
             expected = [t.numpy() for t in model(torch.from_numpy(image))[-1]]
         got = session.run(["beliefs", "affinities"], {"image": image})
+        if not all(np.isfinite(a).all() for a in (*got, *expected)):
+            return math.inf
         worst = max(worst, *(float(np.abs(g - e).max()) for g, e in zip(got, expected)))
     return worst
 
@@ -107,8 +117,8 @@ def check_parity(model: DopeNetwork, path: str | Path, sizes, seed: int = 0) -> 
 def export_checkpoint(checkpoint: str | Path, path: str | Path, opset: int = 17,
                       tolerance: float = 1e-4) -> tuple[Path, float]:
     """Export a training checkpoint's network with its object and input scale as metadata, then check
-    onnxruntime against torch at two sizes; a file whose outputs differ by more than ``tolerance`` is removed
-    and reported. Returns (path, max abs difference)."""
+    onnxruntime against torch at two sizes; a file whose outputs differ by more than ``tolerance`` (or are not
+    finite) is removed and reported. Returns (path, max abs difference)."""
     state = load_checkpoint(checkpoint)
     model = model_from_checkpoint(state)
     metadata = {"object": json.dumps(state["object"]), "input_short_side": str(state["train_config"]["size"]),
@@ -117,5 +127,7 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, opset: int = 17,
     diff = check_parity(model, path, [(1, 240, 320), (2, 64, 96)])
     if diff > tolerance:
         path.unlink()
-        raise PegasusError(f"{path}: onnxruntime differs from torch by {diff:.2e} > {tolerance:g}; not kept")
+        problem = "onnxruntime or torch gives outputs that are not finite" if math.isinf(diff) else \
+            f"onnxruntime differs from torch by {diff:.2e} > {tolerance:g}"
+        raise PegasusError(f"{path}: {problem}; not kept")
     return path, diff
