@@ -25,9 +25,10 @@ import cv2
 import numpy as np
 import torch
 
-from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_checkpoint
+from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_checkpoint, target_object
 from dope_training.data import input_scale
 from dope_training.decode import find_keypoints
+from dope_training.model import check_memory, config_from_dict, memory_estimate
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
 from pegasus_gen.errors import PegasusError
@@ -90,6 +91,15 @@ def on_centroid_ray(T_cam_obj: np.ndarray, cuboid: np.ndarray, centroid_px: np.n
     return out
 
 
+def _metadata(meta: dict[str, str], key: str, parse, path: Path):
+    """``meta[key]`` (ONNX metadata) parsed by ``parse`` (json.loads, int, float); a PegasusError naming the file
+    and the key when it does not parse."""
+    try:
+        return parse(meta[key])
+    except ValueError:
+        raise PegasusError(f"{path}: metadata {key}={meta[key][:60]!r} is not what `pegasus export` writes") from None
+
+
 class DopeModel:
     """A trained network ready for images. ``path``: an ``.onnx`` export (onnxruntime) or a ``.pt`` training
     checkpoint (torch); ``device``: cpu, cuda or auto."""
@@ -99,6 +109,7 @@ class DopeModel:
         if not path.is_file():
             raise PegasusError(f"{path}: no such model file")
         self.path = path
+        self._sizes_checked = set()
         if path.suffix == ".onnx":
             self._init_onnx(path, device)
         else:
@@ -121,12 +132,17 @@ class DopeModel:
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
             raise PegasusError(f"{path}: onnxruntime cannot load it ({exc})") from exc
         meta = self.session.get_modelmeta().custom_metadata_map
-        if "object" not in meta or "input_short_side" not in meta:
-            raise PegasusError(f"{path}: no object/input_short_side metadata; export it with `pegasus export`")
-        self.object = TargetObject(**json.loads(meta["object"]))
-        self.short_side = int(meta["input_short_side"])
-        self.focal_px = float(meta.get("input_focal_px", 0.0))
+        if not {"object", "input_short_side", "config"} <= meta.keys():
+            raise PegasusError(f"{path}: no object/input_short_side/config metadata; export it with `pegasus export`")
+        self.object = target_object(_metadata(meta, "object", json.loads, path), f"{path}: metadata object")
+        self.config = config_from_dict(_metadata(meta, "config", json.loads, path), f"{path}: metadata config")
+        self.short_side = _metadata(meta, "input_short_side", int, path)
+        self.focal_px = _metadata({"input_focal_px": "0", **meta}, "input_focal_px", float, path)
+        if self.short_side <= 0 or not (np.isfinite(self.focal_px) and self.focal_px >= 0):
+            raise PegasusError(f"{path}: metadata input_short_side {self.short_side} / input_focal_px {self.focal_px}: "
+                               "a positive size and a finite focal length >= 0 (px) expected")
         self.backend = "onnxruntime-" + ("cuda" if use_cuda else "cpu")
+        self.device = torch.device("cuda" if use_cuda and torch.cuda.is_available() else "cpu")  # memory checks
         self.model = None
 
     def _init_torch(self, path: Path, device: str) -> None:
@@ -135,10 +151,21 @@ class DopeModel:
             raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
         self.device = torch.device("cuda" if device != "cpu" and torch.cuda.is_available() else "cpu")
         self.model = model_from_checkpoint(state).to(self.device)
+        self.config = self.model.config
         self.object = TargetObject(**state["object"])
         self.short_side = int(state["train_config"]["size"])
         self.focal_px = float(state["train_config"].get("focal_px", 0.0))
         self.backend = f"torch-{self.device.type}"
+
+    def _check_memory(self, w: int, h: int, nw: int, nh: int) -> None:
+        """A PegasusError when the network input of a ``w`` x ``h`` px image, ``nw`` x ``nh`` px, needs more
+        memory than the device has (``model.memory_estimate``); each input size is checked once."""
+        size = (nh + -nh % STRIDE, nw + -nw % STRIDE)
+        if size not in self._sizes_checked:
+            check_memory(memory_estimate(self.config, *size), self.device,
+                         f"{self.path}: a {w}x{h} px image scaled to a {nw}x{nh} px network input (input_short_side "
+                         f"{self.short_side}, input_focal_px {self.focal_px:g})")
+            self._sizes_checked.add(size)
 
     def maps(self, image: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
         """The last stage's beliefs [9, h, w] and affinities [16, h, w] for an RGB image [H, W, 3] uint8 seen
@@ -146,6 +173,7 @@ class DopeModel:
         h, w = image.shape[:2]
         s = input_scale((h, w), K, self.short_side, self.focal_px)
         nw, nh = max(round(w * s), 1), max(round(h * s), 1)
+        self._check_memory(w, h, nw, nh)
         resized = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
         pw, ph = -nw % STRIDE, -nh % STRIDE
         x = np.pad(resized, ((0, ph), (0, pw), (0, 0))).transpose(2, 0, 1)[None].astype(np.float32) / 255.0
