@@ -23,6 +23,7 @@ import contextlib
 import csv
 import math
 import os
+import shutil
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -36,7 +37,15 @@ from tqdm import tqdm
 
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
 from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
-from dope_training.model import DopeNetwork, ModelConfig, dope_loss, load_vgg19_weights, model_config
+from dope_training.model import (
+    DopeNetwork,
+    ModelConfig,
+    check_memory,
+    dope_loss,
+    load_vgg19_weights,
+    memory_estimate,
+    model_config,
+)
 from dope_training.train_config import TrainConfig
 from pegasus_gen.dataset.bop import model_boxes, object_names
 from pegasus_gen.errors import PegasusError
@@ -196,7 +205,7 @@ def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
     out = Path(cfg.out)
     stored = out / "train_config.yaml"
     if not resume:
-        if out.exists() and any(p.name != LOCK_FILE for p in out.iterdir()):
+        if not _is_empty(out):
             raise PegasusError(f"{out} is not empty: pass --resume to continue its training or choose another --out")
         return None
     if not (out / "last.pt").is_file():
@@ -215,8 +224,31 @@ def train(cfg: TrainConfig, resume: bool = False) -> Path:
     """Train as ``cfg`` says (see the module docstring); returns the output folder, which is this run's alone
     while it trains (``FolderLock``, taken by rank 0)."""
     rank, world, local_rank = _distributed()
-    with FolderLock(cfg.out, "pegasus train") if rank == 0 else contextlib.nullcontext():
-        return _train(cfg, resume, rank, world, local_rank)
+    out = Path(cfg.out)
+    with FolderLock(out, "pegasus train") if rank == 0 else contextlib.nullcontext():
+        fresh = rank == 0 and not resume and _is_empty(out)
+        try:
+            return _train(cfg, resume, rank, world, local_rank)
+        except BaseException:
+            if fresh and not (out / "last.pt").exists():
+                _remove_contents(out)  # a fresh run that failed before its first checkpoint leaves nothing
+            raise
+
+
+def _is_empty(folder: Path) -> bool:
+    """Whether ``folder`` is missing or holds nothing but a lock file."""
+    return not folder.exists() or all(p.name == LOCK_FILE for p in folder.iterdir())
+
+
+def _remove_contents(folder: Path) -> None:
+    """Remove everything in ``folder`` but its lock file (the lock removes that, and the folder if it made it)."""
+    for path in folder.iterdir():
+        if path.name == LOCK_FILE:
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
 
 
 def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: int) -> Path:
@@ -237,15 +269,21 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     if state is None and cfg.variant == "full":
         if not load_vgg19_weights(model, cfg.vgg19) and rank == 0:
             print("note: no ImageNet VGG19 weights found (--vgg19 PATH or the torch hub cache): trunk from scratch")
+    check_memory(memory_estimate(architecture, cfg.size, cfg.size, cfg.batch_size, training=True), device,
+                 f"training on {cfg.size} px crops in batches of {cfg.batch_size}")
     model.to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
     first_epoch, step = 0, 0
     if state is not None:
-        model.load_state_dict(state["model"])
-        optimiser.load_state_dict(state["optimizer"])
-        scaler.load_state_dict(state["scaler"])
+        model.load_state_dict(state["model"])  # load_checkpoint checked it against the model config
+        try:
+            optimiser.load_state_dict(state["optimizer"])
+            scaler.load_state_dict(state["scaler"])
+        except (KeyError, ValueError, TypeError, RuntimeError) as exc:
+            raise PegasusError(f"{out / 'last.pt'}: its optimizer/scaler state does not fit the network "
+                               f"({type(exc).__name__}: {exc})") from None
         first_epoch, step = state["epoch"], state["step"]
     net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
         if world > 1 else model
@@ -295,6 +333,11 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
                 counts = torch.tensor([loss.item() * len(image), float(len(image))], dtype=torch.float64)
                 if world > 1:
                     torch.distributed.all_reduce(counts)
+                if not math.isfinite(counts[0].item()):  # every rank sees the same sum and stops
+                    bar.close()
+                    raise PegasusError(f"training loss became {counts[0].item() / counts[1].item()} at step {step + 1} "
+                                       f"(epoch {epoch + 1}): the learning rate ({lr:g}) may be too high or the data "
+                                       "hold bad values; stopped (checkpoints of earlier epochs are kept)")
                 step += 1
                 now = time.perf_counter()
                 rate, t0 = counts[1].item() / max(now - t0, 1e-9), now  # loading included
