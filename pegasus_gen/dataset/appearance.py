@@ -2,9 +2,9 @@
 
 Per scene: a colour transform for each object instance (per-channel gain, then a hue turn), a tint of the
 environment (per-channel gain) and, for a share of scenes, a random procedural texture painted over the
-environment, applied to the splats. Per frame: the camera (exposure, white balance,
-gamma, shot and read noise, defocus, motion blur along the image motion of the objects' centre, JPEG
-quality), applied to the rendered image. None of it moves anything: the labels are those of the scene
+environment and a distant light shading the objects, applied to the splats. Per frame: the camera (exposure,
+white balance, gamma, shot and read noise, defocus, motion blur along the image motion of the objects'
+centre, JPEG quality), applied to the rendered image. None of it moves anything: the labels are those of the scene
 without it.
 """
 
@@ -35,6 +35,15 @@ def environment_texture(cfg: AppearanceConfig, rng: np.random.Generator):
     repaint = rng.uniform() < cfg.retexture
     texture, weight = random_texture(rng, cfg.texture_period), float(rng.uniform(*cfg.texture_weight))
     return (texture, weight) if repaint else None
+
+
+def object_light(cfg: AppearanceConfig, rng: np.random.Generator) -> tuple[np.ndarray, float] | None:
+    """(unit direction [3] towards a distant light, world z up, 20-90 degrees above the horizon; the ambient
+    share) lighting the objects, for a share ``cfg.object_light`` of scenes; None for the others."""
+    lit = rng.uniform() < cfg.object_light
+    azimuth, elevation = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(20, 90))
+    direction = np.array([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
+    return (direction, float(rng.uniform(*cfg.object_ambient))) if lit else None
 
 
 def image_motion(K: np.ndarray, T_before: np.ndarray, T_after: np.ndarray, point: np.ndarray,

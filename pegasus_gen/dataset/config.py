@@ -144,6 +144,11 @@ class AppearanceConfig(_Strict):
     retexture: float = Field(default=0.0, ge=0.0, le=1.0)
     texture_period: Annotated[Range, _range(0.001, 10.0)] = (0.02, 0.15)
     texture_weight: Annotated[Range, _range(0.0, 1.0)] = (0.5, 1.0)
+    # share of scenes whose objects (and distractors) are lit by a distant light from a random direction 20-90
+    # degrees above the horizon: each splat's colour x (ambient + (1 - ambient) 1.5 max(0, n . light)), the
+    # ambient share drawn from object_ambient (splats.colour.shade_lambert)
+    object_light: float = Field(default=0.0, ge=0.0, le=1.0)
+    object_ambient: Annotated[Range, _range(0.0, 1.0)] = (0.35, 0.75)
     exposure_ev: Annotated[Range, _range(-10.0, 10.0)] = (-0.6, 0.4)  # per frame: gain 2^ev
     white_balance: Annotated[Range, _range(0.1, 10.0)] = (0.9, 1.1)  # per frame, red and blue gains (green 1)
     gamma: Annotated[Range, _range(0.1, 10.0)] = (0.85, 1.2)  # per frame: out = in^(1/gamma)

@@ -49,6 +49,7 @@ from pegasus_gen.dataset.appearance import (
     frame_effects,
     image_motion,
     object_colour_transforms,
+    object_light,
 )
 from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import CONFIG_FILE, GenerateConfig
@@ -67,11 +68,11 @@ from pegasus_gen.render.renderer import render
 from pegasus_gen.render.sensor import apply_sensor
 from pegasus_gen.render.shadows import contact_shadows
 from pegasus_gen.splats.cloud import SplatCloud
-from pegasus_gen.splats.colour import blend_colour, transform_colour
+from pegasus_gen.splats.colour import blend_colour, shade_lambert, transform_colour
 
 # random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
 # switching shadows or randomisation on changes no object, pose or camera
-SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM = 1, 2, 3, 4
+SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM, LIGHT_STREAM = 1, 2, 3, 4, 5
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
 RESUMABLE_KEYS = ("output", "library", "device", "workers", "ray")
 
@@ -228,12 +229,14 @@ def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> li
 
 @dataclass
 class SceneLooks:
-    """A scene's colour transforms [3, 3] (the environment's tint and each kept object instance's, in order) and
-    the texture painted over its environment, if any: (points [N, 3] -> rgb [N, 3], blend weight)."""
+    """A scene's colour transforms [3, 3] (the environment's tint and each kept object instance's, in order),
+    the texture painted over its environment, if any: (points [N, 3] -> rgb [N, 3], blend weight), and the
+    light on its objects, if any: (direction [3] towards it, world; ambient share)."""
 
     environment: np.ndarray
     objects: list[np.ndarray]
     texture: tuple[Callable, float] | None
+    light: tuple[np.ndarray, float] | None = None
 
 
 def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | None:
@@ -242,7 +245,8 @@ def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | 
         return None
     rng = np.random.default_rng([cfg.seed, scene_id, APPEARANCE_STREAM])
     return SceneLooks(environment_tint(cfg.appearance, rng), object_colour_transforms(cfg.appearance, count, rng),
-                      environment_texture(cfg.appearance, rng))
+                      environment_texture(cfg.appearance, rng),
+                      object_light(cfg.appearance, np.random.default_rng([cfg.seed, scene_id, LIGHT_STREAM])))
 
 
 def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateConfig, looks: SceneLooks | None,
@@ -260,6 +264,8 @@ def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateCo
             environment = blend_colour(environment, texture(environment.means), weight)
         environment = transform_colour(environment, looks.environment)
         placed = [transform_colour(cloud, M) for cloud, M in zip(placed, looks.objects)]
+        if looks.light is not None:
+            placed = [shade_lambert(cloud, poses[i][:3, 3], *looks.light) for cloud, i in zip(placed, kept)]
     if not cfg.shadows.enabled:
         return environment, placed
     meshes = [plan.objects[i].surface.copy().apply_transform(poses[i]) for i in kept]
