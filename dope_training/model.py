@@ -7,8 +7,10 @@ an affinity branch (16 maps); stage 1 from the features (three 3x3 convs, 1x1 to
 ``light``: the same structure at a quarter of the trunk width, 64-channel stages with 3x3 instead of
 7x7 kernels, 3 stages and BatchNorm after every hidden convolution (it trains from scratch: without
 normalisation the deep plain stack sits at all-zero or blurred beliefs for thousands of steps); about 60x
-fewer multiply-adds, so it trains on a laptop CPU in minutes. Normalisation (ImageNet mean/std) happens
-inside the network: its input is RGB in 0..1.
+fewer multiply-adds, so it trains on a laptop CPU in minutes. ``pretrained``: the light variant's stages on
+the ImageNet-pretrained EfficientNet-Lite0 trunk (``dope_training.backbone``: stride 8, 40 channels), whose
+features were learnt on real photos. Normalisation (the trunk's mean/std) happens inside the network: its
+input is RGB in 0..1.
 """
 
 from __future__ import annotations
@@ -20,10 +22,13 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from dope_training.backbone import OUT_CHANNELS as LITE0_CHANNELS
+from dope_training.backbone import LiteTrunk
 from pegasus_gen.errors import PegasusError
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
+LITE0_MEAN, LITE0_STD = (0.5, 0.5, 0.5), (0.5, 0.5, 0.5)  # EfficientNet-Lite's input scaling: -1..1
 VGG19_TO_CONV4_2 = (64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512)  # features[:23]
 
 
@@ -32,6 +37,7 @@ class ModelConfig:
     """Everything needed to rebuild a network; stored in checkpoints and ONNX metadata."""
 
     variant: str = "full"
+    trunk: str = "vgg"  # vgg: VGG19 to conv4_2 (width / width_divisor); lite0: EfficientNet-Lite0 to stride 8
     stages: int = 6
     width_divisor: int = 1  # trunk channels = VGG's / this
     stage_channels: int = 128
@@ -44,10 +50,11 @@ class ModelConfig:
     def of(variant: str) -> "ModelConfig":
         if variant == "full":
             return ModelConfig()
-        if variant == "light":
-            return ModelConfig(variant="light", stages=3, width_divisor=4, stage_channels=64, late_kernel=3,
-                               batch_norm=True)
-        raise ValueError(f"unknown DOPE variant {variant!r} (full or light)")
+        if variant in ("light", "pretrained"):
+            trunk = {"trunk": "lite0", "mean": LITE0_MEAN, "std": LITE0_STD} if variant == "pretrained" else {}
+            return ModelConfig(variant=variant, stages=3, width_divisor=4, stage_channels=64, late_kernel=3,
+                               batch_norm=True, **trunk)
+        raise ValueError(f"unknown DOPE variant {variant!r} (full, light or pretrained)")
 
 
 def _conv(cin: int, cout: int, k: int, relu: bool = True, bn: bool = False) -> list[nn.Module]:
@@ -79,14 +86,19 @@ class DopeNetwork(nn.Module):
         super().__init__()
         self.config = config or ModelConfig()
         c = self.config
-        layers, cin = [], 3
-        for v in VGG19_TO_CONV4_2:
-            if v == "M":
-                layers.append(nn.MaxPool2d(2, 2))
-            else:
-                layers += _conv(cin, v // c.width_divisor, 3, bn=c.batch_norm)
-                cin = v // c.width_divisor
-        self.features = nn.Sequential(*layers)  # without BatchNorm: indices as torchvision's vgg19().features[:23]
+        if c.trunk == "lite0":
+            self.features, cin = LiteTrunk(), LITE0_CHANNELS
+        elif c.trunk == "vgg":
+            layers, cin = [], 3
+            for v in VGG19_TO_CONV4_2:
+                if v == "M":
+                    layers.append(nn.MaxPool2d(2, 2))
+                else:
+                    layers += _conv(cin, v // c.width_divisor, 3, bn=c.batch_norm)
+                    cin = v // c.width_divisor
+            self.features = nn.Sequential(*layers)  # without BatchNorm: indices as torchvision's vgg19().features
+        else:
+            raise ValueError(f"unknown trunk {c.trunk!r} (vgg or lite0)")
         self.reduce = nn.Sequential(*_conv(cin, 256 // c.width_divisor, 3, bn=c.batch_norm),
                                     *_conv(256 // c.width_divisor, 128 // c.width_divisor, 3, bn=c.batch_norm))
         feat = 128 // c.width_divisor

@@ -35,6 +35,7 @@ import trimesh
 import yaml
 from tqdm import tqdm
 
+from dope_training.backbone import load_pretrained
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
 from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
 from dope_training.model import (
@@ -269,6 +270,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     if state is None and cfg.variant == "full":
         if not load_vgg19_weights(model, cfg.vgg19) and rank == 0:
             print("note: no ImageNet VGG19 weights found (--vgg19 PATH or the torch hub cache): trunk from scratch")
+    if state is None and architecture.trunk == "lite0":
+        load_pretrained(model.features)
     check_memory(memory_estimate(architecture, cfg.size, cfg.size, cfg.batch_size, training=True), device,
                  f"training on {cfg.size} px crops in batches of {cfg.batch_size}")
     model.to(device)

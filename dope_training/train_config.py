@@ -22,8 +22,9 @@ class TrainConfig(BaseModel):
     object: str = Field(min_length=1, description="obj_id or name (BOP), class name (NDDS)")
     out: str = Field("runs/dope", description="output folder (checkpoints, loss curve, belief snapshots)")
     split: str = Field("train_pbr", description="BOP split to train on")
-    variant: Literal["full", "light"] = Field(
-        "light", description="full: the original DOPE (GPU); light: 3 narrow stages for CPU")
+    variant: Literal["full", "light", "pretrained"] = Field(
+        "light", description="full: the original DOPE (GPU); light: 3 narrow stages for CPU; pretrained: light's "
+                             "stages on an ImageNet-pretrained EfficientNet-Lite0 trunk")
     batch_norm: Optional[bool] = Field(None, description="BatchNorm after every hidden convolution (default: the "
                                                          "variant's: light yes, full no)")
     size: int = Field(0, ge=0, description="crop size, px (default: full 400, light 320)")

