@@ -11,6 +11,8 @@ wrist singularity (sin q5 = 0) q6 is free and taken from ``q6_free``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -18,7 +20,8 @@ D = np.array([0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823])  # m
 A = np.array([0.0, -0.425, -0.39225, 0.0, 0.0, 0.0])  # m
 ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])  # rad
 LINK_MASSES = np.array([3.7, 8.393, 2.275, 1.219, 1.219, 0.1879])  # kg
-JOINT_LIMIT = 2 * np.pi  # every UR5 joint turns +-360 degrees
+JOINT_LIMIT = 2 * np.pi  # rad: every UR5 joint turns within [-2 pi, 2 pi]
+MAX_ROTATION = 2 * np.pi  # rad: the longest rotation vector taken (a UR reports angles in [0, pi])
 
 
 def dh_transform(q: float, d: float, a: float, alpha: float) -> np.ndarray:
@@ -93,18 +96,45 @@ def ik(T_base_flange: np.ndarray, q6_free: float = 0.0) -> np.ndarray:
 
 
 def nearest_ik(T_base_flange: np.ndarray, q_now, limit: float = JOINT_LIMIT) -> np.ndarray | None:
-    """The solution nearest (max joint move) to ``q_now`` [6], each joint shifted by 2 pi where that brings
-    it closer while keeping |q| <= ``limit``; None when the pose is out of reach."""
+    """The solution nearest (max joint move) to ``q_now`` [6] (rad), each joint shifted by whole turns where that
+    brings it closer while keeping |q| <= ``limit`` (rad, at least pi; also when ``q_now`` lies beyond it); None when
+    the pose is out of reach."""
     q_now = np.asarray(q_now, dtype=np.float64)
     best, best_cost = None, np.inf
     for q in ik(T_base_flange, q6_free=float(q_now[5])):
-        turns = np.round((q_now - q) / (2 * np.pi))
+        turns = np.clip(np.round((q_now - q) / (2 * np.pi)), np.ceil((-limit - q) / (2 * np.pi)),
+                        np.floor((limit - q) / (2 * np.pi)))
         q = q + 2 * np.pi * turns
-        q = np.where(q > limit, q - 2 * np.pi, np.where(q < -limit, q + 2 * np.pi, q))
         cost = np.abs(q - q_now).max()
         if cost < best_cost:
             best, best_cost = q, cost
     return best
+
+
+def joints_problem(q, limit: float = JOINT_LIMIT) -> str | None:
+    """Why ``q`` is not a joint target (6 finite angles, rad, each within +-``limit`` rad), or None when it is."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape != (6,) or not np.isfinite(q).all():
+        return f"a joint target is 6 finite angles (rad), got {q.tolist()}"
+    beyond = [f"joint {i} = {v:.3f} rad" for i, v in enumerate(q) if abs(v) > limit]
+    if beyond:
+        return f"{', '.join(beyond)} beyond the joint limit +-{limit:.3f} rad"
+    return None
+
+
+def rtde_pose_problem(pose) -> str | None:
+    """Why ``pose`` is not a ur-rtde pose [x, y, z, rx, ry, rz] (m, rotation vector in rad): not 6 numbers, one
+    not finite, a rotation vector longer than ``MAX_ROTATION`` (1e300 rad is no rotation in floating point);
+    None when it is one."""
+    pose = np.asarray(pose, dtype=np.float64)
+    if pose.shape != (6,):
+        return f"a pose is [x, y, z, rx, ry, rz], got shape {pose.shape}"
+    if not np.isfinite(pose).all():
+        return "it holds a NaN or infinite number"
+    angle = math.hypot(*pose[3:])  # rad; no overflow for 1e300
+    if angle > MAX_ROTATION:
+        return f"its rotation vector is {angle:.3g} rad long (at most {MAX_ROTATION:.3f})"
+    return None
 
 
 def pose_to_matrix(pose) -> np.ndarray:

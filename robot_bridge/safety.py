@@ -8,7 +8,8 @@ ends do (both are convex), but its SLERPed orientation can tilt beyond the cone 
 ends lie inside (53.2 and 51.6 degree ends reach 75.8 degrees), so the path is checked at ``samples`` points
 at least, one per half degree of rotation, with the controller's interpolation (straight line, SLERP). A
 joint move's Cartesian path is curved, so it is checked at ``samples`` points along the joint interpolation
-through the forward kinematics.
+through the forward kinematics. The envelope's own parameters are checked when it is made: a NaN limit compares
+false and would switch its check off.
 """
 
 from __future__ import annotations
@@ -19,9 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from pegasus_gen.errors import PegasusError
-from robot_bridge.kinematics import fk, matrix_to_pose, pose_to_matrix
-
-UR5_JOINT_LIMIT = 2 * np.pi  # rad: every UR5 joint turns within [-2 pi, 2 pi]
+from robot_bridge.kinematics import JOINT_LIMIT, fk, joints_problem, matrix_to_pose, pose_to_matrix, rtde_pose_problem
 
 
 class UnsafeCommand(PegasusError):
@@ -40,16 +39,29 @@ class SafetyEnvelope:
     max_acceleration: float = 1.5  # m/s^2
     max_joint_speed: float = 1.6  # rad/s (moveJ)
     max_joint_acceleration: float = 3.0  # rad/s^2
-    samples: int = 50  # points checked along a move at least
-    joint_limit: float = UR5_JOINT_LIMIT  # rad, each joint's |q|
+    samples: int = 50  # points checked along a move at least (both ends among them)
+    joint_limit: float = JOINT_LIMIT  # rad, each joint's |q|, at most the UR5's
 
     def __post_init__(self):
-        if not 0 < self.max_tilt_deg < 90:
-            raise PegasusError(f"max_tilt_deg must be within (0, 90), got {self.max_tilt_deg}")
+        """PegasusError for a parameter that would switch its check off or make no sense (NaN compares false,
+        so a NaN limit would let everything through)."""
         for name in ("x", "y", "z"):
             lo, hi = getattr(self, name)
-            if not lo < hi:
-                raise PegasusError(f"safety box {name} must be (min, max) with min < max, got {(lo, hi)}")
+            if not (np.isfinite([lo, hi]).all() and lo < hi):
+                raise PegasusError(f"safety box {name} must be finite (min, max) with min < max, got {(lo, hi)}")
+        for name in ("table_z", "min_height"):
+            if not np.isfinite(getattr(self, name)):
+                raise PegasusError(f"safety envelope {name} must be a finite number (m), got {getattr(self, name)}")
+        if not 0 < self.max_tilt_deg < 90:
+            raise PegasusError(f"max_tilt_deg must be within (0, 90), got {self.max_tilt_deg}")
+        for name in ("max_speed", "max_acceleration", "max_joint_speed", "max_joint_acceleration"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise PegasusError(f"safety envelope {name} must be finite and positive, got {getattr(self, name)}")
+        if isinstance(self.samples, bool) or not isinstance(self.samples, (int, np.integer)) or self.samples < 2:
+            raise PegasusError(f"safety envelope samples must be a whole number >= 2, got {self.samples!r}")
+        if not 0 < self.joint_limit <= JOINT_LIMIT:
+            raise PegasusError(f"safety envelope joint_limit must be within (0, {JOINT_LIMIT:.3f}] rad, got "
+                               f"{self.joint_limit}")
 
     def problems(self, T_base_tcp: np.ndarray) -> list[str]:
         """What is wrong with a TCP pose [4, 4] (empty when it is inside the envelope)."""
@@ -68,16 +80,20 @@ class SafetyEnvelope:
 
     def sent_pose(self, pose, what: str = "target") -> np.ndarray:
         """T [4, 4] of the pose a command sends for ``pose`` ([x, y, z, rx, ry, rz], or [4, 4]: sent as its
-        rotation vector): UnsafeCommand when a number is not finite or a matrix is not a rigid transform
-        (a scaled or sheared rotation would be sent as some nearby rotation that was never checked)."""
+        rotation vector): UnsafeCommand when a number is not finite, a rotation vector is absurdly long
+        (``kinematics.rtde_pose_problem``) or a matrix is not a rigid transform (a scaled or sheared rotation
+        would be sent as some nearby rotation that was never checked)."""
         T = np.asarray(pose, dtype=np.float64)
         if T.shape not in ((6,), (4, 4)):
             raise UnsafeCommand(f"{what} refused: a pose is [x, y, z, rx, ry, rz] or a 4x4 matrix, got shape "
                                 f"{T.shape}")
+        if T.shape == (6,):
+            problem = rtde_pose_problem(T)
+            if problem is not None:
+                raise UnsafeCommand(f"{what} refused: {problem}")
+            return pose_to_matrix(T)
         if not np.isfinite(T).all():
             raise UnsafeCommand(f"{what} refused: it holds a NaN or infinite number")
-        if T.shape == (6,):
-            return pose_to_matrix(T)
         R = T[:3, :3]
         if (np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or abs(np.linalg.det(R) - 1) > 1e-6
                 or not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0])):
@@ -126,12 +142,9 @@ class SafetyEnvelope:
         """A moveJ from joints ``q_start`` [6] to ``q_target`` [6] (rad), TCP = flange @ ``tcp``."""
         self.check_motion(speed, acceleration, joint=True)
         q_start, q_target = np.asarray(q_start, float), np.asarray(q_target, float)
-        if q_target.shape != (6,) or not np.isfinite(q_target).all():
-            raise UnsafeCommand(f"moveJ refused: a joint target is 6 finite angles (rad), got {q_target.tolist()}")
-        beyond = [f"joint {i} = {v:.3f} rad" for i, v in enumerate(q_target) if abs(v) > self.joint_limit]
-        if beyond:
-            raise UnsafeCommand(f"moveJ refused: {', '.join(beyond)} beyond the joint limit "
-                                f"+-{self.joint_limit:.3f} rad")
+        problem = joints_problem(q_target, self.joint_limit)
+        if problem is not None:
+            raise UnsafeCommand(f"moveJ refused: {problem}")
         for s in np.linspace(0.0, 1.0, self.samples):
             found = self.problems(fk(q_start + s * (q_target - q_start), tcp))
             if found:

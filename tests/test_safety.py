@@ -80,3 +80,25 @@ def test_the_pose_checked_is_the_pose_sent_and_the_whole_linear_path():
         env.check_joint(TOOL_DOWN, far, 0.5, 1.0)
     with pytest.raises(UnsafeCommand, match="6 finite angles"):
         env.check_joint(TOOL_DOWN, TOOL_DOWN + [0, np.nan, 0, 0, 0, 0], 0.5, 1.0)
+
+
+@pytest.mark.parametrize("kwargs", [{"table_z": np.nan}, {"min_height": np.nan}, {"min_height": np.inf},
+                                    {"joint_limit": np.nan}, {"joint_limit": 7.0}, {"joint_limit": 0.0},
+                                    {"samples": 0}, {"samples": 1}, {"samples": 2.5}, {"samples": True},
+                                    {"x": (-np.inf, np.inf)}, {"z": (np.nan, 0.9)}, {"max_tilt_deg": np.nan},
+                                    {"max_speed": np.nan}, {"max_joint_acceleration": 0.0}])
+def test_a_parameter_that_would_switch_a_check_off_is_refused(kwargs):
+    """NaN compares false: SafetyEnvelope(table_z=nan) let a move into the table through (issue 31, H6)."""
+    name = next(iter(kwargs))
+    with pytest.raises(PegasusError, match=name):
+        SafetyEnvelope(**kwargs)
+
+
+def test_an_absurd_rotation_vector_is_refused_with_the_envelopes_error():
+    """A rotation vector of 1e300 rad is no rotation in floating point: UnsafeCommand, not a LinAlgError."""
+    env = SafetyEnvelope()
+    for bad in ([-0.4, -0.1, 0.3, 1e300, 0.0, 0.0], [-0.4, -0.1, 0.3, 0.0, 7.0, 0.0]):
+        with pytest.raises(UnsafeCommand, match="rotation vector is .* rad long"):
+            env.check_pose(bad)
+        with pytest.raises(UnsafeCommand, match="rotation vector is .* rad long"):
+            env.check_linear(fk(TOOL_DOWN), bad, 0.1, 1.0)
