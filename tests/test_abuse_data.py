@@ -201,3 +201,14 @@ def test_asset_lookups_follow_the_name_rule(library, tmp_path, capsys):
     assert main(["assets", "--library", str(library.root), "show", lookup, "--out", str(tmp_path / "pv")]) == 2
     assert "asset name" in one_line_error(capsys)
     assert not out.exists() and not (tmp_path / "pv").exists()
+
+
+def test_a_generate_whose_frames_do_not_fit_in_memory_is_refused_before_anything(library, tmp_path, capsys,
+                                                                                   monkeypatch):
+    from pegasus_gen.render import renderer
+
+    monkeypatch.setattr(renderer, "memory_available", lambda: 10**9)  # 1 GB left: a 4096 x 4096 frame needs 1.3
+    out = tmp_path / "big"
+    assert main(["generate", *args(library.root, out, "camera.width=4096", "camera.height=4096")]) == 2
+    assert "a 4096 x 4096 image needs about 1.3 GB of memory" in one_line_error(capsys)
+    assert not out.exists()

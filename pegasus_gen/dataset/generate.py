@@ -64,7 +64,7 @@ from pegasus_gen.io.files import parse_yaml, write_atomic
 from pegasus_gen.io.images import rgb_to_uint8, write_image
 from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.render.raycast import MeshRaycaster
-from pegasus_gen.render.renderer import render
+from pegasus_gen.render.renderer import check_image_memory, render
 from pegasus_gen.render.sensor import apply_sensor
 from pegasus_gen.render.shadows import contact_shadows
 from pegasus_gen.splats.cloud import SplatCloud
@@ -501,7 +501,8 @@ def _build_in_processes(split: Path, todo: list[int], cfg: GenerateConfig, bar: 
 def generate(cfg: GenerateConfig, resume: bool = False) -> Path:
     """Write the dataset described by ``cfg``; returns the output folder. With ``resume`` the scenes
     already in a matching dataset are kept and only the missing ones are made."""
-    assets = load_assets(cfg)  # all checks before the output folder is touched
+    check_image_memory(cfg.camera.width, cfg.camera.height)  # all checks before the output folder is touched
+    assets = load_assets(cfg)
     out = Path(cfg.output)
     check_output(out, resume)
     with ray_session(cfg.ray, cfg.workers), FolderLock(out, "pegasus generate"):
