@@ -6,8 +6,9 @@ output_int_register_0, async progress in output_int_register_2, commands in inpu
 in input_double_register_0.., register offset 0 or 24 as the script's injection says; async progress as ur-rtde
 1.6 encodes it) for the commands of ``Command``. It never answers "done" to a command it did not carry out: a
 command it does not simulate (speed, servo and force modes among them), a move with a non-finite or out-of-range
-argument and an inverse kinematics without a solution end the program with a logged fault, as a runtime error
-ends a UR program, so the client's call fails. A bare ``stopl``/``stopj``/``halt`` line stops the arm.
+argument (a joint beyond the UR5's +-2 pi, a rotation vector longer than 2 pi), an absurd TCP offset and an
+inverse kinematics without a solution end the program with a logged fault, as a runtime error ends a UR
+program, so the client's call fails. A bare ``stopl``/``stopj``/``halt`` line stops the arm.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import socket
 
 import numpy as np
 
-from robot_bridge.kinematics import fk, matrix_to_pose, nearest_ik, pose_to_matrix
+from robot_bridge.kinematics import fk, joints_problem, matrix_to_pose, nearest_ik, pose_to_matrix, rtde_pose_problem
 from robot_bridge.sim.world import MotionError
 
 READY, DONE = 1, 2  # what the script signals in output_int_register_0
@@ -26,6 +27,7 @@ READY, DONE = 1, 2  # what the script signals in output_int_register_0
 UNSUPPORTED = {2: "moveJ_IK", 4: "moveL_FK", 5: "moveC", 6: "forceMode", 7: "forceModeStop", 9: "speedJ",
                10: "speedL", 11: "servoJ", 12: "servoC", 18: "teachMode", 24: "servoL", 25: "toolContact",
                32: "moveP", 41: "jogStart", 45: "movePath"}
+MAX_TCP_OFFSET = 1.0  # m from the flange: longer than any tool a UR5 carries
 
 
 class Command(enum.IntEnum):
@@ -179,9 +181,11 @@ class ControlProgram:
         c, sim = self.c, self.c.sim
         target, speed, acc, asynchronous = self._doubles(0, 6), self._double(6), self._double(7), self._int(1) == 1
         name = "moveJ" if cmd == Command.MOVEJ else "moveL"
-        if not (np.isfinite(target).all() and np.isfinite([speed, acc]).all() and speed > 0 and acc > 0):
-            return self._fault(f"{name} {target.tolist()} v={speed} a={acc}: every argument must be finite, "
-                               "speed and acceleration positive")
+        problem = joints_problem(target) if cmd == Command.MOVEJ else rtde_pose_problem(target)
+        if problem is None and not (np.isfinite([speed, acc]).all() and speed > 0 and acc > 0):
+            problem = "speed and acceleration must be finite and positive"
+        if problem is not None:
+            return self._fault(f"{name} {target.tolist()} v={speed} a={acc}: {problem}")
         c.record(f"{name} {np.round(target, 5).tolist()} v={speed:g} a={acc:g}{' async' if asynchronous else ''}")
         sim.stop(4.0)
         try:
@@ -217,17 +221,26 @@ class ControlProgram:
             self.waiting_motion = True
 
     def _set_tcp(self, cmd: int) -> bool:
-        self.c.sim.tcp = pose_to_matrix(self._doubles(0, 6))
-        self.c.record(f"setTcp {np.round(self._doubles(0, 6), 5).tolist()}")
+        """The TCP offset T_flange_tcp from the pose given (at most ``MAX_TCP_OFFSET`` m from the flange)."""
+        pose = self._doubles(0, 6)
+        problem = rtde_pose_problem(pose)
+        if problem is None and np.linalg.norm(pose[:3]) > MAX_TCP_OFFSET:
+            problem = f"the TCP would lie {np.linalg.norm(pose[:3]):.3g} m from the flange (at most {MAX_TCP_OFFSET})"
+        if problem is not None:
+            return self._fault(f"setTcp {pose.tolist()}: {problem}")
+        self.c.sim.tcp = pose_to_matrix(pose)
+        self.c.record(f"setTcp {np.round(pose, 5).tolist()}")
         return True
 
     def _inverse_kinematics(self, cmd: int) -> bool:
-        """q [6] whose TCP pose is the pose given, nearest qnear (given, or the current joints)."""
+        """q [6] whose TCP pose is the pose given, nearest qnear (given, or the current joints), each joint within the
+        UR5's limits."""
         sim = self.c.sim
         pose = self._doubles(0, 6)
         qnear = self._doubles(6, 6) if cmd == Command.GET_INVERSE_KINEMATICS_ARGS else sim.q
-        if not (np.isfinite(pose).all() and np.isfinite(qnear).all()):
-            return self._fault(f"getInverseKinematics {pose.tolist()}: not finite")
+        problem = rtde_pose_problem(pose) or (None if np.isfinite(qnear).all() else "qnear is not finite")
+        if problem is not None:
+            return self._fault(f"getInverseKinematics {pose.tolist()}: {problem}")
         q = nearest_ik(pose_to_matrix(pose) @ np.linalg.inv(sim.tcp), qnear)
         if q is None:
             return self._fault(f"getInverseKinematics {np.round(pose, 5).tolist()}: no solution (out of reach)")

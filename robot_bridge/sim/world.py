@@ -10,7 +10,8 @@ real gripper's squeeze does not. Trajectories are trapezoidal velocity profiles:
 joint space (all joints start and stop together, the largest move at the given speed and acceleration),
 moveL along the straight TCP line with the orientation SLERPed in step (the longer of translation at
 ``speed`` m/s and rotation at ``speed`` rad/s sets the time), each point solved by IK nearest the last
-joints. A stop decelerates along the current path at the given deceleration.
+joints within the UR5's +-2 pi (a line that would turn a joint past it is refused before moving). A stop
+decelerates along the current path at the given deceleration.
 """
 
 from __future__ import annotations
@@ -98,7 +99,8 @@ def joint_motion(q_start, q_target, speed: float, acceleration: float) -> Motion
 def linear_motion(q_start, T_start: np.ndarray, T_target: np.ndarray, speed: float, acceleration: float,
                   tcp: np.ndarray) -> Motion:
     """moveL of the TCP from T_start to T_target (base frame); raises MotionError when a point of the line
-    has no IK solution (checked at 1 cm / 2 degree steps before moving)."""
+    has no IK solution within the joint limits, or the joints jump between points (checked at 1 cm / 2 degree
+    steps before moving)."""
     rotations = Slerp([0, 1], Rotation.from_matrix([T_start[:3, :3], T_target[:3, :3]]))
     distance = float(np.linalg.norm(T_target[:3, 3] - T_start[:3, 3]))
     angle = float((Rotation.from_matrix(T_target[:3, :3]) * Rotation.from_matrix(T_start[:3, :3]).inv()).magnitude())
@@ -123,7 +125,8 @@ def linear_motion(q_start, T_start: np.ndarray, T_target: np.ndarray, speed: flo
     for u in np.linspace(0, 1, steps + 1)[1:]:  # check the whole line and the branch before moving
         q_next = nearest_ik(pose(u) @ tcp_inv, q)
         if q_next is None or np.abs(q_next - q).max() > 0.5:
-            raise MotionError(f"moveL: the line leaves the reachable space or passes a singularity at {u:.0%}")
+            raise MotionError(f"moveL: the line leaves the reachable space, passes a singularity or would turn a "
+                              f"joint past its limit at {u:.0%}")
         q = q_next
     return Motion(joints_at, max(distance, angle), speed, acceleration)
 
