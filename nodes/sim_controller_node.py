@@ -1,10 +1,12 @@
 """sim_controller_node: starts the simulated UR controller (a child process, see
 ``robot_bridge.sim.process``) for the launch's lifetime. Parameters: ``host``, ``time_scale``, ``basket``
-(floor centre x y z, base frame), ``log``."""
+(floor centre x y z, base frame), ``log``. A host that is not a loopback address, a time scale out of range
+or a basket the cell refuses (not 3 finite numbers) is a PegasusError."""
 
 from __future__ import annotations
 
 from nodes.ros import Node, declare, run_node
+from pegasus_gen.errors import PegasusError
 from robot_bridge.sim.process import SimControllerProcess
 
 PARAMETERS = (("host", "127.0.0.1"), ("time_scale", 1.0), ("basket", [-0.25, -0.28, 0.0]), ("log", ""))
@@ -17,7 +19,10 @@ class SimControllerNode(Node):
         host, time_scale, basket, log = p["host"], p["time_scale"], list(p["basket"]), p["log"]
         self.process = SimControllerProcess(host, log or None, time_scale=time_scale).start()
         if len(basket) == 3:
-            self.process.command(f"sim basket {basket[0]} {basket[1]} {basket[2]}")
+            answer = self.process.command(f"sim basket {basket[0]} {basket[1]} {basket[2]}")
+            if answer != "basket added":
+                self.process.stop()
+                raise PegasusError(f"sim_controller_node: basket {basket}: {answer}")
 
     def destroy_node(self) -> None:
         self.process.stop()

@@ -8,7 +8,7 @@ from robot_bridge.sim.options import add_arguments
 def cmd_sim_robot(args) -> int:
     from robot_bridge.sim.controller import serve
 
-    return serve(args.host, args.log, args.rate, args.time_scale, args.basket)
+    return serve(args.host, args.log, args.rate, args.time_scale, args.basket, args.allow_remote)
 
 
 def add_commands(sub) -> None:

@@ -1,5 +1,6 @@
-"""``python -m robot_bridge.sim [--host H] [--log FILE] [--rate HZ] [--time-scale S] [--basket X Y Z]``: run the
-simulated UR controller until Ctrl-C / SIGTERM; a bad flag value or a busy address is one error line, exit 2."""
+"""``python -m robot_bridge.sim [--host H [--allow-remote]] [--log FILE] [--rate HZ] [--time-scale S]
+[--basket X Y Z]``: run the simulated UR controller until Ctrl-C / SIGTERM; a bad flag value or a busy address is
+one error line, exit 2."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ def main(argv=None) -> int:
     add_arguments(parser)
     args = parser.parse_args(argv)
     try:
-        return serve(args.host, args.log, args.rate, args.time_scale, args.basket)
+        return serve(args.host, args.log, args.rate, args.time_scale, args.basket, args.allow_remote)
     except PegasusError as exc:
         print(f"robot_bridge.sim: error: {exc}", file=sys.stderr)
         return 2

@@ -1,7 +1,9 @@
 """The simulated UR controller on loopback that the unmodified ur-rtde client drives: ``SimController`` puts the
 dashboard server (29999, ``dashboard``), the RTDE server (30004, ``rtde_server``) and the script ports
 (30001-30003, ``script``) in front of a PyBullet UR5 cell (``world.RobotSim``) and runs the cell at a fixed rate;
-``serve`` runs one until SIGINT/SIGTERM (``python -m robot_bridge.sim``, ``pegasus sim-robot``).
+``serve`` runs one until SIGINT/SIGTERM (``python -m robot_bridge.sim``, ``pegasus sim-robot``). Its settings are
+checked before a port is opened (``options.check_settings``), and should the cell's thread ever die, every port
+closes, so that clients fail at once instead of waiting on a cell that no longer runs.
 
 Every command that reaches the cell is appended to ``SimController.log`` (time, what) and logged, so tests can
 prove what was and was not sent.
@@ -13,6 +15,7 @@ import logging
 import signal
 import socket
 import struct
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -22,6 +25,7 @@ import numpy as np
 from pegasus_gen.errors import PegasusError
 from robot_bridge.sim.client import DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORTS
 from robot_bridge.sim.dashboard import DashboardServer
+from robot_bridge.sim.options import check_settings
 from robot_bridge.sim.rtde_server import RtdeServer
 from robot_bridge.sim.script import ControlProgram, ScriptServer
 from robot_bridge.sim.world import RobotSim
@@ -42,18 +46,22 @@ class ControllerState:
 
 class SimController:
     """The simulated controller. ``start()`` binds the ports on ``host`` (any 127.x.y.z keeps parallel runs
-    apart) and runs the cell at ``rate`` Hz in a thread; ``stop()`` closes everything. The servers share
-    ``state``, ``sim`` and ``lock`` (held while either is read or changed)."""
+    apart; another address only with ``allow_remote``) and runs the cell at ``rate`` Hz in a thread; ``stop()``
+    closes everything. The servers share ``state``, ``sim`` and ``lock`` (held while either is read or changed).
+    Settings out of range are a PegasusError here, before anything is opened."""
 
     def __init__(self, host: str = "127.0.0.1", sim: RobotSim | None = None, rate: float = 125.0,
-                 gripper_output: int = 0, max_frequency: float = 125.0, time_scale: float = 1.0):
+                 gripper_output: int = 0, max_frequency: float = 125.0, time_scale: float = 1.0,
+                 allow_remote: bool = False):
+        check_settings(host, rate, time_scale, allow_remote)
         self.host, self.rate, self.gripper_output, self.max_frequency = host, rate, gripper_output, max_frequency
         self.time_scale = time_scale  # simulated seconds per wall-clock second (> 1: faster than real time)
         self.sim = sim if sim is not None else RobotSim()
         self.state = ControllerState()
         self.log: list[tuple[float, str]] = []
         self.lock = threading.RLock()
-        self.stopping = threading.Event()  # set by stop(): every server loop ends
+        self.stopping = threading.Event()  # set by stop() or a cell fault: every server loop ends
+        self.fault: str | None = None  # why the cell's thread died, if it did (every port is then closed)
         self.program: ControlProgram | None = None  # the running control script, ticked with the cell
         self.input_owners: dict[str, object] = {}  # RTDE input field -> the connection that set it up
         self._threads: list[threading.Thread] = []
@@ -81,6 +89,15 @@ class SimController:
         return self
 
     def stop(self) -> None:
+        self._close_ports()
+        for t in self._threads:
+            if t is not threading.current_thread():
+                t.join(timeout=2)
+        self._sockets, self._threads = [], []
+        self.sim.close()
+
+    def _close_ports(self) -> None:
+        """Set ``stopping`` and close the listening sockets and every connection: each server loop ends."""
         self.stopping.set()
         for s in self._sockets + list(self._connections):
             try:
@@ -88,11 +105,6 @@ class SimController:
             except OSError:
                 pass
             s.close()
-        for t in self._threads:
-            if t is not threading.current_thread():
-                t.join(timeout=2)
-        self._sockets, self._threads = [], []
-        self.sim.close()
 
     def __enter__(self):
         return self.start()
@@ -136,6 +148,16 @@ class SimController:
 
     # -- the cell --------------------------------------------------------------------------------------
     def _run_cell(self) -> None:
+        """Run the cell until ``stop()``; should it fail, record why and close every port (``stop()`` still
+        frees the rest)."""
+        try:
+            self._cell_loop()
+        except Exception as exc:  # noqa: BLE001 - a bug of the simulation: no client may wait on a dead cell
+            self.fault = f"{type(exc).__name__}: {exc}"
+            self.record(f"cell fault: {self.fault}; every port closed")
+            self._close_ports()
+
+    def _cell_loop(self) -> None:
         dt = 1.0 / self.rate
         next_tick = time.monotonic()
         while not self.stopping.is_set():
@@ -176,19 +198,24 @@ class SimController:
 
 
 def serve(host: str = "127.0.0.1", log_path=None, rate: float = 125.0, time_scale: float = 1.0,
-          basket=None) -> int:
+          basket=None, allow_remote: bool = False) -> int:
     """Run a controller until SIGINT/SIGTERM (``python -m robot_bridge.sim``, ``pegasus sim-robot``); the flags
-    are ``options.add_arguments``'s."""
+    are ``options.add_arguments``'s. 0 when stopped by a signal, 1 when the cell failed."""
     logging.basicConfig(level=logging.INFO, format="%(message)s",
                         handlers=[logging.FileHandler(log_path)] if log_path else None, force=True)
-    controller = SimController(host, rate=rate, time_scale=time_scale).start()
+    if basket is not None and not np.isfinite(basket).all():
+        raise PegasusError(f"simulated UR controller: --basket must be 3 finite numbers (m), got {basket}")
+    controller = SimController(host, rate=rate, time_scale=time_scale, allow_remote=allow_remote)
     if basket is not None:
         controller.sim.add_basket(basket)
+    controller.start()
     print(f"simulated UR controller on {host} (dashboard {DASHBOARD_PORT}, RTDE {RTDE_PORT}, "
           f"script {', '.join(map(str, SCRIPT_PORTS))}); Ctrl-C to stop", flush=True)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    stop.wait()
+    signal.signal(signal.SIGTERM, lambda *_: controller.stopping.set())
+    signal.signal(signal.SIGINT, lambda *_: controller.stopping.set())
+    controller.stopping.wait()
     controller.stop()
+    if controller.fault is not None:
+        print(f"simulated UR controller stopped: the cell failed ({controller.fault})", file=sys.stderr)
+        return 1
     return 0

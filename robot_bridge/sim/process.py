@@ -12,13 +12,16 @@ import time
 from pathlib import Path
 
 from robot_bridge.sim.client import DASHBOARD_PORT, RTDE_PORT, dashboard_command
+from robot_bridge.sim.options import check_settings
 
 
 class SimControllerProcess:
     """The simulated controller in a child process: ``start()`` returns once the ports answer; ``log_lines()``
-    reads what reached the cell; ``kill()`` ends it abruptly."""
+    reads what reached the cell; ``kill()`` ends it abruptly. A loopback ``host`` only; settings out of range are a
+    PegasusError here (``options.check_settings``), before a process is started."""
 
     def __init__(self, host: str = "127.0.0.1", log_path=None, rate: float = 125.0, time_scale: float = 1.0):
+        check_settings(host, rate, time_scale)
         self.host, self.rate, self.time_scale = host, rate, time_scale
         self.log_path = Path(log_path) if log_path else Path(tempfile.mkstemp(prefix="sim_ur_", suffix=".log")[1])
         self.process = None
