@@ -1,13 +1,17 @@
 """The simulated UR controller's dashboard server (port 29999) and its answer table: the welcome line, then one
 answer per command line (PolyscopeVersion, is in remote control, robotmode, safetystatus, programState, running,
 stop, play, power on/off, brake release, unlock protective stop, close safety popup, get serial number, get robot
-model, quit, ...), plus the simulation-only ``sim ...`` commands that set up and query the cell."""
+model, quit, ...), plus the simulation-only ``sim ...`` commands that set up and query the cell. A command that
+cannot be carried out is answered with an error line and the connection stays; a line longer than ``MAX_LINE``
+bytes is answered with an error and the connection closed."""
 
 from __future__ import annotations
 
 import socket
+from pathlib import Path
 
 import numpy as np
+import pybullet as pb
 from scipy.spatial.transform import Rotation
 
 from robot_bridge.sim.world import HOME_Q
@@ -21,6 +25,7 @@ ANSWERS = {  # command (lower case) -> answer, where the answer does not depend 
     "brake release": "Brake releasing", "close popup": "closing popup", "close safety popup": "closing safety popup",
     "get serial number": "20195300000", "get robot model": "UR5", "get loaded program": "No program loaded",
     "isprogramsaved": "true <unnamed>", "quit": "Disconnected"}
+MAX_LINE = 16384  # bytes of one command line, its newline included
 
 
 class DashboardServer:
@@ -32,14 +37,14 @@ class DashboardServer:
 
     def serve(self, conn: socket.socket) -> None:
         conn.sendall(b"Connected: Universal Robots Dashboard Server\n")
-        buffer = b""
-        while not self.c.stopping.is_set():
-            chunk = conn.recv(4096)
-            if not chunk:
-                return
-            buffer += chunk
-            while b"\n" in buffer:
-                line, buffer = buffer.split(b"\n", 1)
+        with conn.makefile("rb") as reader:  # buffered: a line costs time linear in its length
+            while not self.c.stopping.is_set():
+                line = reader.readline(MAX_LINE)
+                if not line.endswith(b"\n"):  # the connection closed, or the line is too long
+                    if len(line) == MAX_LINE:
+                        self.c.record(f"dashboard: a line longer than {MAX_LINE} bytes: connection closed")
+                        conn.sendall(f"error: command line longer than {MAX_LINE} bytes\n".encode())
+                    return
                 command = line.decode(errors="replace").strip()
                 answer = self.answer(command)
                 self.c.record(f"dashboard {command!r} -> {answer!r}")
@@ -73,13 +78,18 @@ class DashboardServer:
         """Simulation-only dashboard commands (no UR controller has them), for tests and the sim loop:
         ``sim add NAME URDF x y z qx qy qz qw``, ``sim pose NAME`` (-> x y z qx qy qz qw, base frame),
         ``sim remove NAME``, ``sim basket x y z`` (adds the basket), ``sim in_basket NAME`` (-> true/false),
-        ``sim list`` (-> the object names), ``sim home`` (the arm back at its home joints, gripper open)."""
+        ``sim list`` (-> the object names), ``sim home`` (the arm back at its home joints, gripper open). URDF
+        is the path of an existing ``.urdf`` file (an asset's ``model.urdf``); numbers are finite. A command that
+        cannot be carried out is answered ``sim: error: ...``."""
         sim = self.c.sim
         try:
             verb, args = words[0], words[1:]
             with self.c.lock:
                 if verb == "add":
-                    values = [float(v) for v in args[2:9]]
+                    values = _numbers(args[2:], 7)
+                    urdf = Path(args[1])
+                    if urdf.suffix != ".urdf" or not urdf.is_file():
+                        raise ValueError(f"{args[1]} is not a .urdf file")
                     T = np.eye(4)
                     T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
                     T[:3, 3] = values[:3]
@@ -92,7 +102,7 @@ class DashboardServer:
                     sim.remove_object(args[0])
                     return f"removed {args[0]}"
                 if verb == "basket":
-                    sim.add_basket([float(v) for v in args[:3]])
+                    sim.add_basket(_numbers(args, 3))
                     return "basket added"
                 if verb == "in_basket":
                     return str(sim.in_basket(args[0])).lower()
@@ -102,6 +112,14 @@ class DashboardServer:
                     sim.motion, sim.q, sim.qd = None, HOME_Q.copy(), np.zeros(6)
                     sim.set_gripper(False)
                     return "arm at home"
-        except (IndexError, KeyError, ValueError) as exc:
+        except (IndexError, KeyError, ValueError, pb.error) as exc:
             return f"sim: error: {exc!r}"
         return f"sim: unknown command {words}"
+
+
+def _numbers(words: list[str], n: int) -> list[float]:
+    """``words``, exactly ``n`` of them, as finite numbers; ValueError otherwise."""
+    values = [float(v) for v in words]
+    if len(values) != n or not np.isfinite(values).all():
+        raise ValueError(f"expected {n} finite numbers, got {' '.join(words)!r}")
+    return values
