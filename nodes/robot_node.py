@@ -14,7 +14,8 @@ row-major); ``basket`` (floor centre x y z, base frame); ``table_z`` (the table 
 attempt starts there); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per message on ``attempt``,
 as evaluator_node sends them; the status carries that attempt's number). Poses arriving while it moves are
 ignored. ``results``: per attempt, picked, missed, pregrasp, implausible or failed. Broadcasts the static
-transform base_link -> ``camera_frame`` (the hand-eye).
+transform base_link -> ``camera_frame`` (the hand-eye). Parameters are checked where they enter (``check_parameters``):
+a NaN would switch a check off (e.g. ``table_z`` the envelope's table check).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import IMPLAUSIBLE_DETAIL
 from robot_bridge.bridge import UR5, BridgeConfig
 from robot_bridge.grasp import plan_grasp
-from robot_bridge.kinematics import fk
+from robot_bridge.kinematics import fk, joints_problem
 from robot_bridge.pick import pick_and_place
 from robot_bridge.plausibility import plan_problem, pose_problem
 from robot_bridge.safety import SafetyEnvelope
@@ -43,19 +44,35 @@ PARAMETERS = (
     ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]), ("camera_frame", "camera"))
 
 
+def check_parameters(p: dict) -> None:
+    """PegasusError naming the first of the parameters ``p`` that cannot be used: execute not pick/pregrasp, a list
+    of the wrong length, a number that is not finite, a model box without size, home joints beyond the UR5's
+    limits. (``table_z`` and ``speed`` are the safety envelope's to check.)"""
+    if p["execute"] not in ("pick", "pregrasp"):
+        raise PegasusError(f"robot_node: execute must be pick or pregrasp, got {p['execute']!r}")
+    for name, n in (("hand_eye", 16), ("basket", 3), ("bbox_min", 3), ("bbox_size", 3), ("symmetry_axis", 3)):
+        values = np.asarray(p[name], dtype=np.float64)
+        if values.shape != (n,) or not np.isfinite(values).all():
+            raise PegasusError(f"robot_node: {name} must be {n} finite numbers, got {p[name]}")
+    if min(p["bbox_size"]) <= 0:
+        raise PegasusError(f"robot_node: bbox_size must be positive (m), got {p['bbox_size']}")
+    problem = joints_problem(p["home"])
+    if problem is not None:
+        raise PegasusError(f"robot_node: home: {problem}")
+
+
 class RobotNode(Node):
     def __init__(self, **kwargs):
         super().__init__("robot_node", **kwargs)
         p = declare(self, PARAMETERS)
-        if p["execute"] not in ("pick", "pregrasp"):
-            raise PegasusError(f"robot_node: execute must be pick or pregrasp, got {p['execute']!r}")
-        if len(p["hand_eye"]) != 16 or len(p["basket"]) != 3:
-            raise PegasusError("robot_node: hand_eye needs 16 numbers (T_base_cam row-major), basket 3 (x y z)")
+        check_parameters(p)
         self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
         p["table_z"] = float(p["table_z"])
         self.params = p
-        self.robot = UR5(BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"]),
-                                      envelope=SafetyEnvelope(table_z=p["table_z"])))
+        config = BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"]),
+                              envelope=SafetyEnvelope(table_z=p["table_z"]))
+        config.envelope.check_motion(config.speed, config.acceleration)
+        self.robot = UR5(config)
         self.status_pub = self.create_publisher(msgs.String, "robot_status", 10)
         self.tf_static = StaticTransformBroadcaster(self)  # where the camera is: base_link -> camera
         self.tf_static.sendTransform(matrix_to_transform(self.T_base_cam, "base_link", p["camera_frame"],
