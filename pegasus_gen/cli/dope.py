@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +26,30 @@ def cmd_train(args) -> int:
 def cmd_export(args) -> int:
     from dope_training.export import export_checkpoint
 
-    out = args.out if args.out is not None else Path(args.checkpoint).with_suffix(".onnx")
+    out = _output_file(args.out if args.out is not None else Path(args.checkpoint).with_suffix(".onnx"), "--out")
     path, diff = export_checkpoint(args.checkpoint, out, opset=args.opset)
     print(f"exported {path} (opset {args.opset}); onnxruntime vs torch max abs diff {diff:.2e}")
     return 0
+
+
+def _output_file(path, flag: str) -> Path:
+    """The output file named by ``flag``, refused (PegasusError) before any work when it is a folder or a file
+    stands where its folder should be."""
+    path = Path(path)
+    if path.is_dir():
+        raise PegasusError(f"{flag} {path} is a folder, not a file")
+    options.output_folder(path.parent, flag)
+    return path
+
+
+def _check_camera(args) -> None:
+    """A PegasusError unless ``--K`` has fx, fy > 0 and every value finite, and ``--fov`` is in (0, 180) degrees."""
+    if args.K is not None:
+        fx, fy, cx, cy = args.K
+        if not (np.isfinite(args.K).all() and fx > 0 and fy > 0):
+            raise PegasusError(f"--K {fx:g} {fy:g} {cx:g} {cy:g}: fx, fy > 0 and cx, cy finite (px) expected")
+    elif not 0 < args.fov < 180:
+        raise PegasusError(f"--fov {args.fov:g}: a horizontal field of view in (0, 180) degrees expected")
 
 
 def _read_K(args, width: int, height: int) -> np.ndarray:
@@ -38,17 +59,38 @@ def _read_K(args, width: int, height: int) -> np.ndarray:
     return intrinsics(width, height, args.fov, *(args.K or ()))
 
 
+def _read_image(path) -> np.ndarray:
+    """The RGB image [H, W, 3] uint8 at ``path``; a PegasusError when it cannot be read or its header gives more
+    pixels than PIL's decompression-bomb bound (``Image.MAX_IMAGE_PIXELS``, about 89 MP: 270 MB decoded),
+    checked before decoding."""
+    import cv2
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        try:
+            Image.open(path).close()  # reads the header only, and checks its size
+        except (Image.DecompressionBombWarning, Image.DecompressionBombError):
+            raise PegasusError(f"{path}: more than the {Image.MAX_IMAGE_PIXELS / 1e6:.0f} megapixels an image may "
+                               "have; not decoded") from None
+        except (OSError, ValueError):
+            raise PegasusError(f"{path}: cannot read the image") from None
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise PegasusError(f"{path}: cannot read the image")
+    return image[..., ::-1].copy()
+
+
 def cmd_infer(args) -> int:
     import cv2
 
     from dope_training.infer import DopeModel
     from dope_training.overlay import write_poses
 
+    options.output_folder(args.out)
+    _check_camera(args)
     model = DopeModel(args.model, device=args.device)
-    image = cv2.imread(str(args.image), cv2.IMREAD_COLOR)
-    if image is None:
-        raise PegasusError(f"{args.image}: cannot read the image")
-    image = image[..., ::-1].copy()
+    image = _read_image(args.image)
     K = _read_K(args, image.shape[1], image.shape[0])
     depth = None
     if args.depth is not None:
@@ -79,10 +121,13 @@ def cmd_eval(args) -> int:
     from dope_training.infer import DopeModel
     from pegasus_gen.dataset.bop import write_bop_results
 
+    out = args.out if args.out is not None else Path(args.model).parent / f"eval_{Path(args.data).name}_{args.split}"
+    options.output_folder(out)
+    if args.bop_results:
+        _output_file(args.bop_results, "--bop-results")
     model = DopeModel(args.model, device=args.device)
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
                       min_score=args.min_score, refine=args.depth)
-    out = args.out if args.out is not None else Path(args.model).parent / f"eval_{Path(args.data).name}_{args.split}"
     json_path, png, gallery = write_report(report, out)
     if args.bop_results:
         path = write_bop_results(args.bop_results, report["estimates"])
