@@ -150,7 +150,9 @@ def convex_decomposition(mesh: trimesh.Trimesh, out_path, resolution: int = 100_
     import os
     import tempfile
 
-    import pybullet
+    from pegasus_gen.io.bullet import quiet_pybullet
+
+    pybullet = quiet_pybullet()
 
     out_path = str(out_path)
     with tempfile.TemporaryDirectory() as tmp:

@@ -9,11 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import pybullet as pb
 
 from pegasus_gen.assets.library import Asset
 from pegasus_gen.dataset.distractors import Distractor
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.io.bullet import quiet_pybullet
+
+pb = quiet_pybullet()
 
 
 @dataclass(frozen=True)

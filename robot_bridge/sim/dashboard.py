@@ -11,10 +11,9 @@ import socket
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 from scipy.spatial.transform import Rotation
 
-from robot_bridge.sim.world import HOME_Q
+from robot_bridge.sim.world import HOME_Q, pb
 
 CONTROLLER_VERSION = (5, 11, 1, 108318)
 POLYSCOPE_VERSION = "URSoftware 5.11.1.108318 (Mar 17 2021)"

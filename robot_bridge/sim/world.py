@@ -21,11 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 from scipy.spatial.transform import Rotation, Slerp
 
+from pegasus_gen.io.bullet import quiet_pybullet
 from robot_bridge.kinematics import fk, nearest_ik
 from robot_bridge.ur5_urdf import GRIPPER_FORCE, GRIPPER_STROKE, TCP_Z, ur5_urdf
+
+pb = quiet_pybullet()
 
 HOME_Q = np.array([0.0, -1.8, 1.8, -1.57, -1.57, 0.0])  # rad: TCP pointing down in front of the base
 
