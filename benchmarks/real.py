@@ -2,7 +2,8 @@
 dataset's real photos (DOPE alone).
 
 Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 800] [--epochs 30]
-       [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] --out OUT
+       [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda]
+       [--generate key=value ...] [--train key=value ...] --out OUT
 
 What it reads of DIR, and nothing else: ``models/obj_{ID:06d}.ply`` (mm, vertex colour) and
 ``models/models_info.json`` (diameter), the split's ``scene_camera.json`` (the real camera's K) and image size,
@@ -14,9 +15,10 @@ and for scoring the split's ground truth. Steps, each with its time:
    every scene (target and clutter of the others), 2-6 procedural distractors, the three built-in environments
    (half of the scenes repainted with a random texture), generate's shadows and appearance randomisation,
    cameras ``--distance`` m from the objects at 20-75 degrees elevation, rendered at the recipe's network scale
-   (``dope_training.recipe``) with the real camera's shape; and a synthetic held-out set (another seed, 24
-   frames).
-3. Per object a light network trained with the recipe (``OUT/runs/obj_ID``).
+   (``dope_training.recipe``) with the real camera's shape, and ``--generate`` overrides on top; and a
+   synthetic held-out set (another seed, 24 frames). A finished dataset in OUT is reused.
+3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
+   (``OUT/runs/obj_ID``; a finished run is reused).
 4. Per object: ``pegasus eval`` figures on the real split (``OUT/eval/obj_ID``: eval.json, the curve and the
    gallery of the worst images) and on the synthetic held-out set.
 
@@ -41,9 +43,9 @@ import torch
 
 from dope_training.evaluate import evaluate, write_report
 from dope_training.infer import DopeModel
-from dope_training.recipe import RealCamera, network_focal, train_fields, training_camera
+from dope_training.recipe import VARIANT, RealCamera, network_focal, train_fields, training_camera
 from dope_training.train import train
-from dope_training.train_config import TrainConfig
+from dope_training.train_config import TrainConfig, parse_options
 from pegasus_gen.assets.demo import build_demo_library
 from pegasus_gen.assets.importers import import_mesh
 from pegasus_gen.assets.library import AssetLibrary
@@ -106,6 +108,9 @@ def main() -> int:
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     parser.add_argument("--out", required=True)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--variant", choices=("light", "pretrained"), default=VARIANT)
+    parser.add_argument("--generate", nargs="*", default=[], help="generate overrides (key=value) of the data")
+    parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields (key=value) on the recipe's")
     args = parser.parse_args()
     root, out = Path(args.real), Path(args.out)
     try:
@@ -137,7 +142,7 @@ def main() -> int:
               f"min_objects={len(ids)}", f"frames_per_scene={FRAMES_PER_SCENE}", "distractors.count=[2, 6]",
               "appearance.retexture=0.5", f"trajectory.distance=[{args.distance[0]}, {args.distance[1]}]",
               "trajectory.elevation_deg=[20, 75]", f"device={'cuda' if args.device == 'cuda' else 'cpu'}",
-              *(f"camera.{k}={v}" for k, v in cam.items())]
+              *(f"camera.{k}={v}" for k, v in cam.items()), *args.generate]
     data = make_dataset(out / "data", [*common, f"scenes={args.frames // FRAMES_PER_SCENE}", f"seed={args.seed}"])
     held_out = make_dataset(out / "held_out", [*common, "scenes=3", f"seed={args.seed + 1000}"])
     times["generate"] = time.monotonic() - t0
@@ -147,8 +152,9 @@ def main() -> int:
         t0 = time.monotonic()
         run = out / "runs" / f"obj_{i:06d}"
         if not (run / "last.pt").is_file():
+            fields = {**train_fields(focal[i], args.epochs), "variant": args.variant, **parse_options(args.train)}
             train(TrainConfig(data=[str(data)], object=str(i), out=str(run), device=args.device, seed=args.seed,
-                              **train_fields(focal[i], args.epochs)))
+                              **fields))
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
@@ -169,6 +175,7 @@ def main() -> int:
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
            "training_camera": cam, "frames": args.frames, "epochs": args.epochs, "distance_m": list(args.distance),
+           "variant": args.variant, "generate": args.generate, "train": args.train,
            "objects": {str(i): rows[i] for i in ids}, "mean": mean, "seconds": times,
            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}"}
     (out / "real.json").write_text(json.dumps(doc, indent=1))

@@ -18,6 +18,7 @@ OBJECT_PX = 40.0  # the object's diameter in network-input pixels at the middle 
 STRIDE = 8
 CROP_PX = 128
 NEGATIVES = 0.3
+VARIANT = "light"  # the network the recipe trains (TrainConfig.variant)
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,7 @@ def training_camera(focal_px: float, camera: RealCamera) -> dict:
 
 
 def train_fields(focal_px: float, epochs: int) -> dict:
-    """TrainConfig fields of the recipe: the light network, CROP_PX crops at ``focal_px``, the demo's
-    optimiser settings, NEGATIVES of the crops on random points of the image."""
-    return {"variant": "light", "size": CROP_PX, "focal_px": round(focal_px, 3), "epochs": epochs, "lr": 2e-3,
+    """TrainConfig fields of the recipe: CROP_PX crops at ``focal_px``, the demo's optimiser settings,
+    NEGATIVES of the crops on random points of the image."""
+    return {"size": CROP_PX, "focal_px": round(focal_px, 3), "epochs": epochs, "lr": 2e-3,
             "schedule": "cosine", "peak_weight": 10.0, "negatives": NEGATIVES}

@@ -1,0 +1,64 @@
+"""The sim-to-real recipe's choices from the object's size and the camera, and benchmarks/real.py end to end on
+a tiny generated stand-in for a real BOP test split."""
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dope_training.recipe import OBJECT_PX, RealCamera, network_focal, training_camera
+from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.generate import generate
+
+ROOT = Path(__file__).resolve().parents[1]
+KINECT = RealCamera(np.array([[572.41, 0, 325.26], [0, 573.57, 242.04], [0, 0, 1]]), 640, 480)
+
+
+def test_the_network_sees_every_object_at_one_size_and_real_images_are_never_enlarged():
+    for diameter in (0.05, 0.1, 0.15):
+        focal = network_focal(diameter, (0.4, 1.4), KINECT)
+        assert focal == pytest.approx(min(OBJECT_PX * 0.9 / diameter, 572.41))
+    assert network_focal(0.02, (0.4, 1.4), KINECT) == pytest.approx(572.41)  # a tiny object: the camera's own
+
+
+def test_the_training_camera_is_the_real_one_scaled_to_the_network_focal_length():
+    rng = np.random.default_rng(0)
+    for focal in (250.0, 353.0, 572.41):
+        cam = training_camera(focal, KINECT)
+        assert cam["width"] % 8 == 0 and cam["height"] % 8 == 0
+        assert cam["fx"] == pytest.approx(focal, rel=0.02) and cam["width"] / cam["height"] == pytest.approx(4 / 3,
+                                                                                                            rel=0.02)
+        K = np.array([[cam["fx"], 0, cam["cx"]], [0, cam["fy"], cam["cy"]], [0, 0, 1]])
+        points = rng.uniform([-0.3, -0.2, 0.5], [0.3, 0.2, 1.5], (50, 3))
+        real = (points @ KINECT.K.T)[:, :2] / points[:, 2:]
+        scaled = (points @ K.T)[:, :2] / points[:, 2:]
+        s = np.array([cam["width"] / 640, cam["height"] / 480])
+        np.testing.assert_allclose(scaled, (real + 0.5) * s - 0.5, atol=1e-2)  # the same image, resampled
+
+
+@pytest.mark.slow
+def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_path):
+    real = tmp_path / "real"
+    generate(load_config(None, [f"output={real}", f"library={library.root}", "split=test", "scenes=1",
+                                "frames_per_scene=3", "camera.width=320", "camera.height=240", "device=cpu",
+                                "environments=[tiled_floor]", "objects=[{asset: 1, count: [1, 1]}]", "min_objects=1"]))
+    out = tmp_path / "bench"
+    script = str(ROOT / "benchmarks" / "real.py")
+    result = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "8",
+                             "--epochs", "1", "--device", "cpu", "--out", str(out)],
+                            capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-2000:]
+    last = result.stdout.strip().splitlines()[-1]
+    assert re.fullmatch(r"real: mean ADD\(-S\) 0\.1d recall \d\.\d{3}, AUC \d\.\d{3}, false positives per image "
+                        r"\d+\.\d{2} over 1 objects", last), last
+    doc = json.loads((out / "real.json").read_text())
+    figures = doc["objects"]["1"]["real"]
+    assert figures["images"] == 3 and figures["instances"] == 3  # every test image scored, one cup in each
+    assert doc["training_camera"]["width"] % 8 == 0 and (out / "eval" / "obj_000001" / "eval.json").is_file()
+    bad = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "99", "--out",
+                          str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "obj_000099.ply" in bad.stderr
