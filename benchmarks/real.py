@@ -81,10 +81,14 @@ def object_infos(root: Path, ids: list[int]) -> dict[int, dict]:
 
 
 def make_dataset(folder: Path, overrides: list[str]) -> Path:
-    """The dataset of ``overrides`` in ``folder``, generated unless a finished one is there."""
-    if not (folder / "finished").is_file():
+    """The dataset of ``overrides`` in ``folder``, generated unless a finished one of the same overrides is
+    there (one of others is refused)."""
+    done, wanted = folder / "finished", "\n".join(overrides)
+    if done.is_file() and done.read_text() != wanted:
+        raise PegasusError(f"{folder} was generated with other settings; choose another --out")
+    if not done.is_file():
         generate(load_config(None, [f"output={folder}", *overrides]), resume=folder.exists())
-        (folder / "finished").write_text("\n".join(overrides))
+        done.write_text(wanted)
     return folder
 
 
