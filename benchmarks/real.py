@@ -18,7 +18,7 @@ and for scoring the split's ground truth. Steps, each with its time:
    (``dope_training.recipe``) with the real camera's shape, and ``--generate`` overrides on top; and a
    synthetic held-out set (another seed, 24 frames). A finished dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
-   (``OUT/runs/obj_ID``; a finished run is reused).
+   (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
 4. Per object: ``pegasus eval`` figures on the real split (``OUT/eval/obj_ID``: eval.json, the curve and the
    gallery of the worst images) and on the synthetic held-out set.
 
@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 import torch
 
+from dope_training.checkpoint import load_checkpoint
 from dope_training.evaluate import evaluate, write_report
 from dope_training.infer import DopeModel
 from dope_training.recipe import VARIANT, RealCamera, network_focal, train_fields, training_camera
@@ -155,10 +156,11 @@ def main() -> int:
     for i in ids:
         t0 = time.monotonic()
         run = out / "runs" / f"obj_{i:06d}"
-        if not (run / "last.pt").is_file():
+        started = (run / "last.pt").is_file()
+        if not started or load_checkpoint(run / "last.pt")["epoch"] < args.epochs:  # new, or cut short: resumed
             fields = {**train_fields(focal[i], args.epochs), "variant": args.variant, **parse_options(args.train)}
             train(TrainConfig(data=[str(data)], object=str(i), out=str(run), device=args.device, seed=args.seed,
-                              **fields))
+                              **fields), resume=started)
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
