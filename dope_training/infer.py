@@ -137,7 +137,7 @@ class DopeModel:
         self.object = target_object(_metadata(meta, "object", json.loads, path), f"{path}: metadata object")
         self.config = config_from_dict(_metadata(meta, "config", json.loads, path), f"{path}: metadata config")
         self.short_side = _metadata(meta, "input_short_side", int, path)
-        self.focal_px = _metadata({"input_focal_px": "0", **meta}, "input_focal_px", float, path)
+        self.focal_px = _metadata(meta, "input_focal_px", float, path) if "input_focal_px" in meta else 0.0
         if self.short_side <= 0 or not (np.isfinite(self.focal_px) and self.focal_px >= 0):
             raise PegasusError(f"{path}: metadata input_short_side {self.short_side} / input_focal_px {self.focal_px}: "
                                "a positive size and a finite focal length >= 0 (px) expected")
