@@ -26,8 +26,8 @@ def test_a_checkpoint_that_would_run_code_is_refused_without_running_it(tmp_path
     marker = tmp_path / "code_ran"
     model = build_model(ModelConfig.of("light"))
     crafted = {"format": CHECKPOINT_FORMAT, "model": model.state_dict(), "optimizer": {}, "scaler": {}, "epoch": 1,
-               "step": 1, "model_config": model_config(model), "train_config": {"size": 64},
-               "object": asdict(TargetObject(1, "cup", [-0.05] * 3, [0.1] * 3)), "stride": 8, "payload": Payload(marker)}
+               "step": 1, "model_config": model_config(model), "train_config": {"size": 64}, "stride": 8,
+               "object": asdict(TargetObject(1, "cup", [-0.05] * 3, [0.1] * 3)), "payload": Payload(marker)}
     torch.save(crafted, tmp_path / "crafted.pt")
     with pytest.raises(PegasusError, match="not a readable checkpoint"):
         load_checkpoint(tmp_path / "crafted.pt")
