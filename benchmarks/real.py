@@ -19,8 +19,9 @@ and for scoring the split's ground truth. Steps, each with its time:
    synthetic held-out set (another seed, 24 frames). A finished dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
-4. Per object: ``pegasus eval`` figures on the real split (``OUT/eval/obj_ID``: eval.json, the curve and the
-   gallery of the worst images) and on the synthetic held-out set.
+4. Per object: ``pegasus eval`` figures on the synthetic held-out set, which sets the detection score (the
+   lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there), then on the real
+   split with that score (``OUT/eval/obj_ID``: eval.json, the curve and the gallery of the worst images).
 
 Writes ``OUT/real.json``, prints one line per object and ends with one line: ``real: mean ADD(-S) 0.1d recall R,
 AUC A, false positives per image F over N objects``.
@@ -42,9 +43,16 @@ import numpy as np
 import torch
 
 from dope_training.checkpoint import load_checkpoint
-from dope_training.evaluate import evaluate, write_report
+from dope_training.evaluate import evaluate, score_threshold, write_report
 from dope_training.infer import DopeModel
-from dope_training.recipe import VARIANT, RealCamera, network_focal, train_fields, training_camera
+from dope_training.recipe import (
+    HELD_OUT_FALSE_POSITIVES,
+    VARIANT,
+    RealCamera,
+    network_focal,
+    train_fields,
+    training_camera,
+)
 from dope_training.train import train
 from dope_training.train_config import TrainConfig, parse_options
 from pegasus_gen.assets.demo import build_demo_library
@@ -164,17 +172,19 @@ def main() -> int:
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
-        report = evaluate(model, root, args.split, max_images=args.max_images)
-        write_report(report, out / "eval" / f"obj_{i:06d}")
         synthetic = evaluate(model, held_out, "train_pbr")
         write_report(synthetic, out / "eval_synthetic" / f"obj_{i:06d}")
+        min_score = score_threshold(synthetic, HELD_OUT_FALSE_POSITIVES)
+        report = evaluate(model, root, args.split, max_images=args.max_images, min_score=min_score)
+        write_report(report, out / "eval" / f"obj_{i:06d}")
         times[f"evaluate obj {i}"] = time.monotonic() - t0
         rows[i] = {"real": figures(report), "synthetic": figures(synthetic), "focal_px": focal[i],
-                   "diameter_m": diameters[i]}
+                   "diameter_m": diameters[i], "min_score": min_score}
         r, s = rows[i]["real"], rows[i]["synthetic"]
         print(f"obj {i}: real {r['metric']} 0.1d recall {r['recall_0_1d']:.3f}, AUC {r['auc']:.3f}, "
               f"{r['false_positives_per_image']:.2f} false positives per image, {r['misses']} of {r['instances']} "
-              f"missed; synthetic held-out recall {s['recall_0_1d']:.3f}, AUC {s['auc']:.3f}", flush=True)
+              f"missed (min score {min_score:.2f}); synthetic held-out recall {s['recall_0_1d']:.3f}, AUC "
+              f"{s['auc']:.3f}", flush=True)
 
     mean = {k: float(np.mean([rows[i]["real"][k] for i in ids])) for k in ("recall_0_1d", "auc",
                                                                           "false_positives_per_image")}

@@ -234,6 +234,20 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     return report
 
 
+def score_threshold(report: dict, max_false_positives_per_image: float) -> float:
+    """The lowest detection score (centroid belief) at which the report's estimates would leave at most
+    ``max_false_positives_per_image`` false positives per image: counted as every estimate at or above it
+    less the matched ones at or above it (each instance keeps its match while its score passes). Calibrate on
+    generated held-out frames, never on the photos the figures are for."""
+    scores = np.array([e["score"] for f in report["frames"] for e in f["estimates"]], float)
+    matched = np.array([m["score"] for m in report["per_instance"] if m["score"] is not None], float)
+    images = max(report["images"], 1)
+    for t in np.unique(np.concatenate([[report["min_score"]], scores])):
+        if ((scores >= t).sum() - (matched >= t).sum()) / images <= max_false_positives_per_image:
+            return float(t)
+    return float(scores.max(initial=report["min_score"])) + 1e-6
+
+
 def write_report(report: dict, out: str | Path) -> tuple[Path, Path, Path | None]:
     """``out``/eval.json, ``out``/eval_curve.png (pass rate against threshold for ADD and ADD-S, and with
     depth refinement when the report has it) and ``out``/eval_worst.png (``write_gallery``; None when no

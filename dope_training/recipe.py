@@ -19,6 +19,9 @@ STRIDE = 8
 CROP_PX = 128
 NEGATIVES = 0.3
 VARIANT = "light"  # the network the recipe trains (TrainConfig.variant)
+# the detection score is the lowest at which the network leaves this many false positives per image on generated
+# held-out frames (evaluate.score_threshold)
+HELD_OUT_FALSE_POSITIVES = 0.25
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from dope_training.evaluate import (
     match_instances,
     pass_rates,
     recall,
+    score_threshold,
     summary,
     write_gallery,
     write_report,
@@ -197,6 +198,15 @@ def test_recall_at_a_tenth_of_the_diameter_is_bops_strict_threshold():
     assert figures["recall_0_1d"] == pytest.approx(2 / 5)
     assert summary(errors, 0.3)["recall_0_1d"] == pytest.approx(4 / 5)
     assert figures["auc_0_10cm"] == pytest.approx(auc(errors)) and recall(np.array([]), 0.01) == 0.0
+
+
+def test_score_threshold_keeps_false_positives_per_image_within_the_bound():
+    frames = [{"estimates": [{"score": 0.9}, {"score": 0.5}, {"score": 0.3}]},
+              {"estimates": [{"score": 0.8}, {"score": 0.2}]}]
+    report = {"frames": frames, "images": 2, "min_score": 0.1,
+              "per_instance": [{"score": 0.9}, {"score": 0.8}, {"score": None}]}  # two matched, one missed
+    # above 0.1: 3 false positives in 2 images; 0.3: 2; 0.5: 1; 0.8: none
+    assert [score_threshold(report, f) for f in (2.0, 1.5, 1.0, 0.5, 0.0)] == [0.1, 0.1, 0.3, 0.5, 0.8]
 
 
 def test_gallery_shows_the_worst_images(tmp_path):
