@@ -38,10 +38,13 @@ def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist
     while True:
         obj = np.ascontiguousarray(cuboid[used], dtype=np.float64)
         img = np.ascontiguousarray(keypoints_2d[used], dtype=np.float64)
-        ok, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_SQPNP)
-        if not ok:
+        try:  # OpenCV asserts on degenerate input (keypoints that all coincide): no pose, like a failed solve
+            ok, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+            if not ok:
+                return None
+            rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, dist, rvec, tvec)
+        except cv2.error:
             return None
-        rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, dist, rvec, tvec)
         projected = cv2.projectPoints(np.asarray(cuboid, np.float64), rvec, tvec, K, dist)[0].reshape(-1, 2)
         errors = np.where(used, np.linalg.norm(projected - np.nan_to_num(keypoints_2d), axis=1), -1.0)
         worst = int(np.argmax(errors))

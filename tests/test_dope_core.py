@@ -112,6 +112,11 @@ def test_pnp_recovers_poses_from_exact_keypoints_and_holds_up_under_noise_and_mi
         assert 1.0 < np.median(px) < 3.0  # the residual is the noise, not a wrong pose
 
 
+def test_pnp_on_keypoints_that_all_coincide_is_no_pose_not_an_error():
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    assert solve_pose(np.tile([[200.0, 150.0]], (9, 1)), CUBOID, K) is None  # OpenCV 5's SQPnP asserts here
+
+
 def test_pnp_drops_keypoints_that_do_not_fit_the_others():
     """Two of nine keypoints moved by 40-60 % of the box's projected size (peaks of something else joined to the
     instance): the pose is the one solved from the seven others alone."""
