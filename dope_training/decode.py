@@ -2,15 +2,17 @@
 grouped to centroids by the affinity fields. After NVlabs/Deep_Object_Pose ``detector.py``, with this
 stack's map convention.
 
-Peaks: a copy of each belief map blurred with a Gaussian of ``blur_cells`` cells serves only to find
-them: a peak is a cell of the blurred map >= its 4 neighbours (on a tie the right/lower cell wins, so a
-two-cell plateau gives one peak) and > ``blur_threshold``; its score is the unblurred belief there,
-kept when > ``min_score``. Its sub-cell position, along rows and along columns apart, is the vertex of the
-parabola through the logarithms of the unblurred beliefs at the peak cell and its two neighbours (``subcell``:
-a Gaussian's logarithm is a parabola, so this is exact for a Gaussian peak of any width, clamped to one
-cell; values floored at 1e-3), taken to input pixels by ``targets.cells_to_pixels``, the exact inverse of
-how ``make_targets`` lays out the cells; so there is no 0.4395 offset as upstream. On a map's border cell the
-missing neighbour leaves that coordinate at the cell's centre (up to 4 px off).
+Peaks: a copy of each belief map blurred with a Gaussian of ``blur_cells`` cells serves only to find them: a
+peak is a cell of the blurred map >= its 4 neighbours (on a tie the right/lower cell wins, so a two-cell
+plateau gives one peak) and > ``blur_threshold``; its score is the unblurred belief there, kept when >
+``min_score`` for centroids (an instance's detection score) and > min(``min_score``, ``CORNER_SCORE``) for
+corners (a detection threshold above that must not take a detected instance's corners away). Its sub-cell
+position, along rows and along columns apart, is the vertex of the parabola through the logarithms of the
+unblurred beliefs at the peak cell and its two neighbours (``subcell``: a Gaussian's logarithm is a parabola,
+so this is exact for a Gaussian peak of any width, clamped to one cell; values floored at 1e-3), taken to
+input pixels by ``targets.cells_to_pixels``, the exact inverse of how ``make_targets`` lays out the cells; so
+there is no 0.4395 offset as upstream. On a map's border cell the missing neighbour leaves that coordinate at
+the cell's centre (up to 4 px off).
 
 Why not upstream's belief-weighted mean over a 5x5 window: it is off by up to 0.26 px on exact targets, a
 same-kind keypoint 4 cells away pulls it by up to 7 px, and on a trained network's maps the low, noisy beliefs
@@ -40,6 +42,7 @@ import numpy as np
 from dope_training.targets import cells_to_pixels
 
 LOG_FLOOR = 1e-3  # beliefs below this count as this in the sub-cell fit
+CORNER_SCORE = 0.1  # corner peaks join an instance above this belief (or min_score, if lower)
 
 
 @dataclass
@@ -98,6 +101,7 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
     Returns Detections (keypoints in input pixels of the network's input), highest centroid score first.
     """
     centroids, _, centroid_scores = find_peaks(beliefs[8], stride, blur_cells, blur_threshold, min_score)
+    corner_score = min(min_score, CORNER_SCORE)
     order = np.argsort(-centroid_scores, kind="stable")
     centroids, centroid_scores = centroids[order], centroid_scores[order]
     detections = []
@@ -106,7 +110,7 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
         keypoints[8] = centroid
         detections.append(Detection(keypoints, np.r_[np.zeros(8), score]))
     for k in range(8):
-        points, cells, scores = find_peaks(beliefs[k], stride, blur_cells, blur_threshold, min_score)
+        points, cells, scores = find_peaks(beliefs[k], stride, blur_cells, blur_threshold, corner_score)
         pairs = []  # (distance, peak, instance) of every pair whose directions agree
         for p, (point, (i, j)) in enumerate(zip(points, cells)):
             affinity = affinities[2 * k:2 * k + 2, i, j].astype(np.float64)

@@ -73,6 +73,19 @@ def test_decoding_the_targets_gives_back_the_keypoints_and_their_instances(insta
     assert find_keypoints(np.zeros((9, 25, 25)), np.zeros((16, 25, 25))) == []
 
 
+def test_a_detection_threshold_keeps_the_corners_of_the_instances_it_keeps():
+    rng = np.random.default_rng(4)
+    Kc = np.array([[250.0, 0, 99.5], [0, 250.0, 99.5], [0, 0, 1]])
+    keypoints = project_points(CUBOID, random_pose(rng, (-0.01, 0.01), (0.6, 0.7)), Kc)[None]
+    beliefs, affinities = make_targets(keypoints, np.ones((1, 9), bool), 200, 200)
+    beliefs[:8] *= 0.3  # weak corners under a confident centroid, as a trained network's often are
+    beliefs[8] *= 0.8
+    for threshold in (0.1, 0.5, 0.7):
+        (found,) = find_keypoints(beliefs, affinities, min_score=threshold)
+        assert np.isfinite(found.keypoints).all() and found.scores[8] > 0.7  # all nine keypoints still there
+    assert find_keypoints(beliefs, affinities, min_score=0.85) == []  # the centroid alone decides
+
+
 @pytest.mark.parametrize("sigma_px", [4.0, 8.0])
 def test_sub_cell_positions_are_exact_on_gaussian_peaks_and_not_pulled_by_a_neighbour(sigma_px):
     """The log-parabola fit is exact on a Gaussian peak of any width, also with a same-kind peak 3 (0.5-cell
