@@ -295,7 +295,7 @@ def write_gallery(report: dict, path: str | Path, count: int = GALLERY_IMAGES, w
         height = height or round(image.shape[0] * width / image.shape[1])
         tile = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
         caption = (f"{f['scene']}/{f['im_id']}: {f['misses']} missed, {f['false_positives']} false pos., "
-                   f"{f['failed_0_1d']} beyond 0.1d")
+                   f"{f['failed_0_1d']} > 0.1d")
         cv2.rectangle(tile, (0, 0), (width, 16), (0, 0, 0), -1)
         cv2.putText(tile, caption, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (255, 255, 255), 1, cv2.LINE_AA)
         tiles.append(tile)
