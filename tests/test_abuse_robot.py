@@ -51,7 +51,7 @@ def ask(conn, reader, line: str) -> str:
     return reader.readline().decode().strip()
 
 
-def wait_for(condition, timeout: float = 3.0) -> bool:
+def wait_for(condition, timeout: float = 10.0) -> bool:
     """Whether ``condition()`` holds within ``timeout`` seconds."""
     deadline = time.monotonic() + timeout
     while not condition() and time.monotonic() < deadline:
@@ -75,7 +75,7 @@ def test_the_simulator_refuses_what_a_ur_would_refuse_and_never_answers_done(con
                lambda c: c.setTcp([np.nan, 0, 0, 0, 0, 0]), lambda c: c.setTcp([2.0, 0, 0, 0, 0, 0]))
         for call in bad:
             t0 = time.monotonic()
-            assert not call(control) and time.monotonic() - t0 < 2.0
+            assert not call(control) and time.monotonic() - t0 < 10.0  # refused, not hung (a hang ran for minutes)
             assert control.reuploadScript() and wait_for(control.isProgramRunning)  # the program ended: again
             np.testing.assert_allclose(receive.getActualQ(), HOME_Q, atol=1e-9)
             np.testing.assert_allclose(control.getTCPOffset(), tcp, atol=1e-12)
@@ -143,7 +143,7 @@ def test_a_cell_that_dies_closes_every_port_so_clients_fail_fast(monkeypatch):
         controller.sim.collision = "a collision the cell cannot handle"
         t0 = time.monotonic()
         assert reader.readline() == b""  # the connection ends
-        assert time.monotonic() - t0 < 2.0 and controller.fault == "RuntimeError: broken cell"
+        assert time.monotonic() - t0 < 10.0 and controller.fault == "RuntimeError: broken cell"
         with pytest.raises(ConnectionRefusedError):
             socket.create_connection((controller.host, DASHBOARD_PORT), timeout=1.0)
         conn.close()
@@ -181,7 +181,7 @@ def test_a_dashboard_line_is_bounded():
         except ConnectionError:  # the server closed it part-way
             pass
         assert reader.readline().decode().startswith(f"error: command line longer than {MAX_LINE} bytes")
-        assert time.monotonic() - t0 < 3.0
+        assert time.monotonic() - t0 < 10.0  # linear: the quadratic buffer took 24 s
         conn.close()
         assert dashboard_command(controller.host, "robotmode") == "Robotmode: RUNNING"
     finally:
