@@ -28,10 +28,10 @@ from torch import nn
 
 from dope_training.checkpoint import load_checkpoint, model_from_checkpoint
 from dope_training.model import DopeNetwork, model_config
+from dope_training.targets import STRIDE
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import give_default_mode
 
-STRIDE = 8
 INPUT = "RGB float32 0..1, [B, 3, H, W], H and W multiples of 8"
 
 

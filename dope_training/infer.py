@@ -31,10 +31,10 @@ from dope_training.decode import find_keypoints
 from dope_training.model import check_memory, config_from_dict, memory_estimate
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
+from dope_training.targets import STRIDE
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
 
-STRIDE = 8
 NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])  # the object's axes, 1 m ahead
 
 

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dope_training.targets import STRIDE
+
 OBJECT_PX = 40.0  # the object's diameter in network-input pixels at the middle distance
-STRIDE = 8
 CROP_PX = 128
 NEGATIVES = 0.3
 VARIANT = "light"  # the network the recipe trains (TrainConfig.variant)

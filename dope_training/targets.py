@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+STRIDE = 8  # the network's output stride: one map cell per 8 x 8 input pixels
 SIGMA_PX = 4.0  # belief Gaussian std in input pixels (half a map cell at stride 8), as DOPE
 AFFINITY_RADIUS_PX = 8.0  # cells whose centre lies this close to a corner carry its affinity vector
 
