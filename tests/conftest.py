@@ -19,6 +19,14 @@ def random_cloud(rng: np.random.Generator, n: int, sh_degree: int = 3, labels=(0
     )
 
 
+def one_line_error(capsys):
+    """The one error line of stderr (progress bars of generate, validate and view aside), and no traceback."""
+    err = capsys.readouterr().err
+    lines = [line for line in err.strip().splitlines() if not line.startswith(("generate:", "validate:", "view:"))]
+    assert len(lines) == 1 and lines[0].startswith("pegasus: error: ") and "Traceback" not in err, err
+    return lines[0]
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

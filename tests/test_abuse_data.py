@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_line_error
 from pydantic import BaseModel
+from test_dataset_abuse import args
 
 from pegasus_gen.cli.main import main
 from pegasus_gen.dataset.config import GenerateConfig, load_config
@@ -18,24 +20,10 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 
 
-def args(library_root, out, *extra):
-    return [f"output={out}", f"library={library_root}", "scenes=1", "frames_per_scene=1", "camera.width=160",
-            "camera.height=120", "device=cpu", "environments=[wooden_table]", "objects=[{asset: 1, count: [1, 1]}]",
-            *extra]
-
-
 def files(root):
     """{relative path: bytes} of every file (symlinks as their target's name) under ``root``."""
     return {p.relative_to(root).as_posix(): (str(p.readlink()) if p.is_symlink() else p.read_bytes())
             for p in sorted(Path(root).rglob("*")) if p.is_file() or p.is_symlink()}
-
-
-def one_line_error(capsys):
-    """The one error line of stderr (progress bars aside), and no traceback."""
-    err = capsys.readouterr().err
-    lines = [line for line in err.strip().splitlines() if not line.startswith(("generate:", "validate:"))]
-    assert len(lines) == 1 and lines[0].startswith("pegasus: error: ") and "Traceback" not in err, err
-    return lines[0]
 
 
 # --- C1: the lock ---------------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import one_line_error
 
 from pegasus_gen.cli.main import main
 from pegasus_gen.dataset.config import load_config
@@ -25,14 +26,6 @@ def args(library_root, out, *extra):
 
 def files(root):
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(Path(root).rglob("*")) if p.is_file()}
-
-
-def one_line_error(capsys):
-    """The one error line of stderr (progress bars aside), and no traceback."""
-    err = capsys.readouterr().err
-    lines = [line for line in err.strip().splitlines() if not line.startswith(("generate:", "view:"))]
-    assert len(lines) == 1 and lines[0].startswith("pegasus: error: ") and "Traceback" not in err, err
-    return lines[0]
 
 
 def test_a_second_writer_is_refused_while_the_first_runs(library, tmp_path, capsys):
