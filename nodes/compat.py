@@ -13,6 +13,7 @@ processes need real ROS 2 (rclpy); launch files run every node in one process.
 
 from __future__ import annotations
 
+import array
 import collections
 import concurrent.futures
 import logging
@@ -26,18 +27,31 @@ from enum import Enum, IntEnum
 from nodes.msgs import TFMessage
 
 
+class RCLError(RuntimeError):
+    """rclpy._rclpy_pybind11.RCLError: what rcl refuses (a negative timer period, a second type on a topic)."""
+
+
+class ExternalShutdownException(Exception):
+    """rclpy.executors.ExternalShutdownException: real rclpy's spin raises it when a signal shut the context
+    down; the stand-in's spin just returns."""
+
+
 class ParameterException(Exception):
-    def __init__(self, message: str, name: str):
-        super().__init__(message)
+    """rclpy.exceptions.ParameterException: the message, then ``: `` and the parameter(s)."""
+
+    def __init__(self, message: str, name):
+        super().__init__(f"{message}: {name}")
         self.parameter_name = name
 
 
-class ParameterNotDeclaredException(Exception):
-    pass
+class ParameterNotDeclaredException(ParameterException):
+    def __init__(self, name):
+        super().__init__("Invalid access to undeclared parameter(s)", name)
 
 
-class ParameterAlreadyDeclaredException(Exception):
-    pass
+class ParameterAlreadyDeclaredException(ParameterException):
+    def __init__(self, name):
+        super().__init__("Parameter(s) already declared", name)
 
 
 class InvalidParameterTypeException(ParameterException):
@@ -106,16 +120,22 @@ _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 
 
 def expand_topic_name(name: str, node_name: str, namespace: str) -> str:
-    """The fully qualified name of topic or service ``name`` as ROS 2 expands it: relative names go under the
-    node's namespace, ``~`` is the node's own; InvalidTopicNameException when it breaks ROS 2's name rules
-    (tokens of letters, digits and underscores not starting with a digit, no ``__``, no trailing ``/``)."""
+    """The fully qualified name of topic or service ``name`` as ROS 2 (rcl) expands it: relative names go
+    under the node's namespace, ``~`` is the node's own, ``{node}`` / ``{ns}`` / ``{namespace}`` are
+    substituted (another substitution is a ValueError); InvalidTopicNameException when it breaks ROS 2's name
+    rules (tokens of letters, digits and underscores not starting with a digit, no empty token, no trailing
+    ``/``, ``~`` only first and followed by ``/``)."""
     base = "/" + namespace.strip("/") if namespace.strip("/") else ""
-    if name.startswith("~"):
-        full = f"{base}/{node_name}{name[1:]}"
+    for sub in re.findall(r"\{[^{}]*\}", name):
+        if sub not in ("{node}", "{ns}", "{namespace}"):
+            raise ValueError(f"topic name {name!r} is invalid: unknown substitution: {sub}")
+    expanded = name.replace("{node}", node_name).replace("{ns}", base or "/").replace("{namespace}", base or "/")
+    if expanded == "~" or expanded.startswith("~/"):
+        full = f"{base}/{node_name}{expanded[1:]}"
     else:
-        full = name if name.startswith("/") else f"{base}/{name}"
-    if not re.fullmatch(f"(/{_TOKEN})+", full) or "__" in full:
-        raise InvalidTopicNameException(f"invalid topic name {name!r} (expanded: {full!r})")
+        full = expanded if expanded.startswith("/") else f"{base}/{expanded}"
+    if not re.fullmatch(f"(/{_TOKEN})+", full):
+        raise InvalidTopicNameException(f"Invalid topic name: {name!r} (expanded: {full!r}) breaks ROS 2's rules")
     return full
 
 
@@ -151,7 +171,9 @@ class Context:
 _default = Context()
 
 
-def init(args=None, context: Context | None = None) -> None:
+def init(args=None, context: Context | None = None, domain_id: int | None = None) -> None:
+    """Start ``context`` (the default one); ``domain_id`` is accepted as rclpy's (every message stays in-process
+    here: no other process is ever met)."""
     (context or _default).running = True
 
 
@@ -210,27 +232,27 @@ class Future:
 # -- entities ---------------------------------------------------------------------------------------------
 class Publisher:
     def __init__(self, node: "Node", msg_type, topic: str, qos: QoSProfile):
-        self.node, self.msg_type, self.topic, self.qos = node, msg_type, topic, qos
+        self.node, self.msg_type, self.topic_name, self.qos = node, msg_type, topic, qos
 
     def publish(self, msg) -> None:
         if not isinstance(msg, self.msg_type):
-            raise TypeError(f"{self.topic}: publish() expects {self.msg_type.__name__}, got {type(msg).__name__}")
+            raise TypeError(f"{self.topic_name}: publish() expects {self.msg_type.__name__}, got {type(msg).__name__}")
         ctx = self.node.context
         with ctx.lock:
             if self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
-                ctx.latched[self.topic][self] = msg
-            for sub in ctx.subscriptions.get(self.topic, []):
+                ctx.latched[self.topic_name][self] = msg
+            for sub in ctx.subscriptions.get(self.topic_name, []):
                 if matched(self, sub):
                     sub.queue.append(msg)
         ctx.notify()
 
     def get_subscription_count(self) -> int:
-        return sum(matched(self, sub) for sub in self.node.context.subscriptions.get(self.topic, []))
+        return sum(matched(self, sub) for sub in self.node.context.subscriptions.get(self.topic_name, []))
 
     def destroy(self) -> None:
         with self.node.context.lock:
-            self.node.context.latched.get(self.topic, {}).pop(self, None)  # its stored message goes with it
-            self.node.context.publishers[self.topic].remove(self)
+            self.node.context.latched.get(self.topic_name, {}).pop(self, None)  # its stored message goes with it
+            self.node.context.publishers[self.topic_name].remove(self)
         self.node.publishers.remove(self)
 
 
@@ -250,20 +272,35 @@ def matched(pub: Publisher, sub: "Subscription") -> bool:
 
 
 def _warn_unmatched(pub: Publisher, sub: "Subscription") -> None:
-    """Log, as rclpy's default QoS event handlers do, why ``pub`` and ``sub`` on one topic do not match."""
+    """Log on both sides, as rclpy's default event handlers do, why ``pub`` and ``sub`` on one topic do not
+    match (each names the topic as its node gave it)."""
     if pub.msg_type is not sub.msg_type:
-        sub.node.get_logger().warning(
-            f"topic {sub.topic}: publisher of {pub.node.get_name()} has type {pub.msg_type.__name__}, subscription "
-            f"of {sub.node.get_name()} {sub.msg_type.__name__}: no messages will pass")
+        for entity in (sub, pub):
+            entity.node.get_logger().warning(
+                f"Incompatible type on topic '{entity.topic}', no messages will be sent to it.")
     elif (policy := incompatible_policy(pub.qos, sub.qos)) is not None:
         sub.node.get_logger().warning(
             f"New publisher discovered on topic '{sub.topic}', offering incompatible QoS. No messages will be "
             f"received from it. Last incompatible policy: {policy}")
+        pub.node.get_logger().warning(
+            f"New subscription discovered on topic '{pub.topic}', requesting incompatible QoS. No messages "
+            f"will be sent to it. Last incompatible policy: {policy}")
+
+
+def _check_one_type(context: "Context", entity) -> None:
+    """RCLError, as Fast DDS's one participant per context gives, when ``entity``'s topic already has an
+    endpoint of another type in the same context (in separate contexts, as in separate processes, they only
+    do not match)."""
+    for table in (context.publishers, context.subscriptions):
+        for other in table.get(entity.topic_name, []):
+            if other.node.context is entity.node.context and other.msg_type is not entity.msg_type:
+                raise RCLError(f"create_{type(entity).__name__.lower()}() called for existing topic name "
+                               f"{entity.topic_name} with incompatible type {entity.msg_type.TYPE_NAME}")
 
 
 class Subscription:
     def __init__(self, node: "Node", msg_type, topic: str, callback, qos: QoSProfile):
-        self.node, self.msg_type, self.topic, self.callback = node, msg_type, topic, callback
+        self.node, self.msg_type, self.topic_name, self.callback = node, msg_type, topic, callback
         depth = None if qos.history == HistoryPolicy.KEEP_ALL else max(qos.depth, 1)
         self.queue: collections.deque = collections.deque(maxlen=depth)
         self.qos = qos
@@ -274,14 +311,14 @@ class Subscription:
 
     def destroy(self) -> None:
         with self.node.context.lock:
-            self.node.context.subscriptions[self.topic].remove(self)
+            self.node.context.subscriptions[self.topic_name].remove(self)
         self.node.subscriptions.remove(self)
 
 
 class Timer:
     def __init__(self, node: "Node", period: float, callback):
-        if period <= 0:
-            raise ValueError(f"timer period must be positive, got {period}")
+        if period < 0:
+            raise RCLError("failed to create timer: timer period must be non-negative")
         self.node, self.period, self.callback = node, period, callback
         self.next_call = time.monotonic() + period
         self.cancelled = False
@@ -358,7 +395,7 @@ class Parameter:
             ``value``; TypeError when none does."""
             if value is None:
                 return cls.NOT_SET
-            kinds = _ARRAY_ITEMS if isinstance(value, (list, tuple)) else _SCALARS
+            kinds = _ARRAY_ITEMS if isinstance(value, (list, tuple, array.array)) else _SCALARS
             kind = next((kind for kind in kinds if cls(kind).check(value)), None)
             if kind is None:
                 raise TypeError(f"The given value is not one of the allowed types '{value}'.")
@@ -370,7 +407,8 @@ class Parameter:
                 return value is None
             if self in _SCALARS:
                 return isinstance(value, _SCALARS[self])
-            return isinstance(value, (list, tuple)) and all(isinstance(v, _ARRAY_ITEMS[self]) for v in value)
+            return isinstance(value, (list, tuple, array.array)) and all(isinstance(v, _ARRAY_ITEMS[self])
+                                                                         for v in value)
 
     def __init__(self, name: str, type_: "Parameter.Type | None" = None, value=None):
         if type_ is None:
@@ -424,6 +462,14 @@ class ParameterValue:
         if type_ == Parameter.Type.NOT_SET:
             return cls()
         return cls(**{"type": int(type_), f"{type_.name.lower()}_value": value})
+
+
+@dataclass
+class SetParametersResult:
+    """rcl_interfaces.msg.SetParametersResult"""
+
+    successful: bool = False
+    reason: str = ""
 
 
 @dataclass
@@ -482,18 +528,22 @@ class Node:
 
     def create_publisher(self, msg_type, topic: str, qos_profile) -> Publisher:
         pub = Publisher(self, msg_type, self.resolve_topic_name(topic), _qos(qos_profile))
+        pub.topic = topic
         with self.context.lock:
-            self.context.publishers[pub.topic].append(pub)
-            for sub in self.context.subscriptions.get(pub.topic, []):
+            _check_one_type(self.context, pub)
+            self.context.publishers[pub.topic_name].append(pub)
+            for sub in self.context.subscriptions.get(pub.topic_name, []):
                 _warn_unmatched(pub, sub)
         self.publishers.append(pub)
         return pub
 
     def create_subscription(self, msg_type, topic: str, callback, qos_profile) -> Subscription:
         sub = Subscription(self, msg_type, self.resolve_topic_name(topic), callback, _qos(qos_profile))
+        sub.topic = topic
         with self.context.lock:
-            self.context.subscriptions[sub.topic].append(sub)
-            for pub in self.context.publishers.get(sub.topic, []):
+            _check_one_type(self.context, sub)
+            self.context.subscriptions[sub.topic_name].append(sub)
+            for pub in self.context.publishers.get(sub.topic_name, []):
                 _warn_unmatched(pub, sub)
         self.subscriptions.append(sub)
         return sub
@@ -574,17 +624,27 @@ class Node:
             raise ParameterUninitializedException(name)
         return param
 
-    def set_parameters(self, parameters: list[Parameter]) -> list[bool]:
-        """Each parameter must be declared and of its static type (else the same exceptions as rclpy's)."""
+    def set_parameters(self, parameters: list[Parameter]) -> list["SetParametersResult"]:
+        """As rclpy: an undeclared parameter raises ParameterNotDeclaredException (before any is set); a
+        read-only one or one of another type than its static type is not set, and its result says why
+        (``successful=False``, rclpy's reason)."""
+        undeclared = [param.name for param in parameters if param.name not in self._parameters]
+        if undeclared:
+            raise ParameterNotDeclaredException(undeclared)
+        results = []
         for param in parameters:
-            if param.name not in self._parameters:
-                raise ParameterNotDeclaredException(param.name)
             descriptor = self._descriptors[param.name]
             if descriptor.read_only:
-                raise ParameterException(f"parameter '{param.name}' is read-only", param.name)
-            self._check_type(param, descriptor)
-            self._parameters[param.name] = param
-        return [True] * len(parameters)
+                results.append(SetParametersResult(False, f"Trying to set a read-only parameter: {param.name}."))
+            elif (not descriptor.dynamic_typing and param.type_ != Parameter.Type.NOT_SET
+                  and param.type_ != descriptor.type):
+                expected = Parameter.Type(descriptor.type).name
+                results.append(SetParametersResult(
+                    False, f"Wrong parameter type, expected 'Type.{expected}' got 'Type.{param.type_.name}'"))
+            else:
+                self._parameters[param.name] = param
+                results.append(SetParametersResult(True))
+        return results
 
     def has_parameter(self, name: str) -> bool:
         return name in self._parameters
@@ -592,15 +652,15 @@ class Node:
     def destroy_node(self) -> None:
         with self.context.lock:
             for sub in self.subscriptions:
-                if sub in self.context.subscriptions[sub.topic]:  # gone already when the graph was shut down
-                    self.context.subscriptions[sub.topic].remove(sub)
+                if sub in self.context.subscriptions[sub.topic_name]:  # gone already when the graph was shut down
+                    self.context.subscriptions[sub.topic_name].remove(sub)
             for service in self.services:
                 if self.context.services.get(service.name) is service:
                     del self.context.services[service.name]
             for pub in self.publishers:
-                self.context.latched.get(pub.topic, {}).pop(pub, None)
-                if pub in self.context.publishers[pub.topic]:
-                    self.context.publishers[pub.topic].remove(pub)
+                self.context.latched.get(pub.topic_name, {}).pop(pub, None)
+                if pub in self.context.publishers[pub.topic_name]:
+                    self.context.publishers[pub.topic_name].remove(pub)
         self.publishers, self.subscriptions, self.timers = [], [], []
 
     # work the executor can do now: [(callable, args)]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import array
 import collections.abc
+import math
 
 import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -41,6 +42,9 @@ _INT_RANGES = {"int8": (-2**7, 2**7 - 1), "uint8": (0, 2**8 - 1), "byte": (0, 2*
                "int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1), "int32": (-2**31, 2**31 - 1),
                "uint32": (0, 2**32 - 1), "int64": (-2**63, 2**63 - 1), "uint64": (0, 2**64 - 1)}
 _FLOATS = {"float32": np.float32, "float64": np.float64}
+_FLOAT32_MAX = 3.402823466e38
+# rosbags' base type -> rosidl's name of it (get_fields_and_field_types)
+_ROSIDL_NAMES = {"bool": "boolean", "byte": "octet", "char": "uint8", "float32": "float", "float64": "double"}
 _TYPECODES = {"int8": "b", "uint8": "B", "byte": "B", "char": "B", "int16": "h", "uint16": "H", "int32": "i",
               "uint32": "I", "int64": "q", "uint64": "Q", "float32": "f", "float64": "d"}
 _CLASSES: dict[str, type] = {}
@@ -75,12 +79,31 @@ class _Field:
             return isinstance(value, message_class(self.item))
         if self.base == "bool":
             return isinstance(value, bool)
+        if self.base == "byte" and self.kind == Nodetype.BASE:  # rosidl's octet: one byte as bytes
+            return isinstance(value, bytes) and len(value) == 1
         if self.base == "string":
             return isinstance(value, str) and (not self.bound or len(value) <= self.bound)
-        if self.base in _FLOATS:
-            return isinstance(value, float)
+        if self.base in _FLOATS:  # a float32 holds at most 3.4e38 in magnitude (or inf), as rosidl checks it
+            return isinstance(value, float) and (
+                self.base == "float64" or not (value < -_FLOAT32_MAX or value > _FLOAT32_MAX) or math.isinf(value))
         low, high = _INT_RANGES[self.base]
-        return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+        return isinstance(value, int) and low <= value <= high  # a bool is an int, as rosidl sees it
+
+    def rosidl_type(self) -> str:
+        """The field's type as rosidl's ``get_fields_and_field_types`` spells it (``double[9]``,
+        ``sequence<uint8>``, ``std_msgs/Header``)."""
+        if self.item_kind == Nodetype.NAME:
+            package, _, short = self.item.split("/")
+            item = f"{package}/{short}"
+        elif self.base == "string":
+            item = f"string<{self.bound}>" if self.bound else "string"
+        else:
+            item = _ROSIDL_NAMES.get(self.base, self.base)
+        if self.kind == Nodetype.ARRAY:
+            return f"{item}[{self.size}]"
+        if self.kind == Nodetype.SEQUENCE:
+            return f"sequence<{item}, {self.size}>" if self.size else f"sequence<{item}>"
+        return item
 
     def describe(self) -> str:
         item = self.item if self.item_kind == Nodetype.NAME else self.base
@@ -102,6 +125,8 @@ class _Field:
     def _scalar_default(self):
         if self.item_kind == Nodetype.NAME:
             return message_class(self.item)()
+        if self.base == "byte" and self.kind == Nodetype.BASE:
+            return b"\x00"
         return {"bool": False, "string": ""}.get(self.base, 0.0 if self.base in _FLOATS else 0)
 
     def convert(self, value):
@@ -130,7 +155,9 @@ def _make_class(type_name: str) -> type:
     fields = [_Field(type_name, name, definition) for name, definition in STORE.fielddefs[type_name][1]]
     by_name = {f.name: f for f in fields}
 
-    def __init__(self, **kwargs):
+    def __init__(self, check_fields=None, **kwargs):
+        # check_fields: accepted as rosidl's classes accept it; the stand-in checks every field always (rosidl
+        # checks only with check_fields=True or ROS_PYTHON_CHECK_FIELDS=1, which nodes.ros sets for real ROS 2)
         unknown = sorted(set(kwargs) - set(by_name))
         if unknown:
             raise AssertionError(f"Invalid arguments passed to constructor: {', '.join(unknown)}")
@@ -153,7 +180,11 @@ def _make_class(type_name: str) -> type:
             setattr(self, slot, f.convert(value))
         return property(lambda self: getattr(self, slot), setter)
 
+    def get_fields_and_field_types(cls):
+        return {f.name: f.rosidl_type() for f in fields}
+
     namespace = {"__slots__": tuple("_" + n for n in by_name), "__init__": __init__, "__eq__": __eq__,
+                 "get_fields_and_field_types": classmethod(get_fields_and_field_types),
                  "__hash__": None, "__repr__": __repr__, "TYPE_NAME": type_name,
                  "__doc__": f"{type_name} (stand-in, fields checked on assignment)"}
     namespace.update({f.name: make_property(f) for f in fields})
@@ -181,7 +212,9 @@ def to_rosbags(msg):
     values = {}
     for name, (kind, details) in STORE.fielddefs[msg.TYPE_NAME][1]:
         value = getattr(msg, name)
-        if kind == Nodetype.NAME:
+        if kind == Nodetype.BASE and details[0] == "byte":
+            value = value[0]
+        elif kind == Nodetype.NAME:
             value = to_rosbags(value)
         elif kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
             item_kind, item = details[0]
@@ -200,7 +233,9 @@ def from_rosbags(instance):
     values = {}
     for name, (kind, details) in STORE.fielddefs[instance.__msgtype__][1]:
         value = getattr(instance, name)
-        if kind == Nodetype.NAME:
+        if kind == Nodetype.BASE and details[0] == "byte":
+            value = bytes([value])
+        elif kind == Nodetype.NAME:
             value = from_rosbags(value)
         elif kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
             item_kind, item = details[0]
