@@ -1,40 +1,119 @@
-"""The ROS 2 API the nodes are written against: the real rclpy and message packages when they import,
-otherwise the stand-in layer (``nodes.compat``, ``nodes.msgs``). Nodes import everything from here:
+"""The ROS 2 API the nodes are written against: the real rclpy and message packages when they all import (a
+ROS 2 install), otherwise the stand-in layer (``nodes.compat``, ``nodes.msgs``); ``PEGASUS_ROS=rclpy`` takes
+the real rclpy with the ROS 2 wheels of the ros extra alone. Nodes import everything from here:
 
     from nodes.ros import rclpy, Node, msgs, QoSProfile
 """
 
 from __future__ import annotations
 
-try:  # pragma: no cover - exercised only where ROS 2 is installed
-    import types
+import importlib
+import os
+import types
 
+# Which implementation: "auto" (the real rclpy where ROS 2 is installed, with tf2_ros and vision_msgs: a ROS 2
+# install or workspace; else the stand-in), "rclpy" (the real rclpy with the message packages there are: with
+# only the ros extra's wheels, a node that needs tf2_ros, tf2_msgs or vision_msgs refuses to start, naming
+# them), or "stand-in".
+CHOICE = os.environ.get("PEGASUS_ROS", "auto")
+if CHOICE not in ("auto", "rclpy", "stand-in"):
+    raise ImportError(f"PEGASUS_ROS must be auto, rclpy or stand-in, got {CHOICE!r}")
+# rosidl's message classes check their fields on assignment only with this set (read as each message package is
+# imported): the real nodes are then held to the same rules as the stand-in's
+os.environ.setdefault("ROS_PYTHON_CHECK_FIELDS", "1")
+
+
+def _no_wheel(name: str, package: str) -> ImportError:
+    return ImportError(f"{name} needs ROS 2's {package}, which has no wheel: run this node in a ROS 2 install "
+                       "(source its setup.bash) or on the stand-in (PEGASUS_ROS=stand-in)")
+
+
+class _NotInRosWheels:
+    """Stands for a tf2_ros broadcaster under PEGASUS_ROS=rclpy with the wheels alone: making one raises an
+    ImportError naming tf2_ros."""
+
+    def __init__(self, package: str, name: str):
+        self.package, self.name = package, name
+
+    def __call__(self, *args, **kwargs):
+        raise _no_wheel(self.name, self.package)
+
+
+class _Messages(types.SimpleNamespace):
+    """The message classes by name; one whose package has no wheel (``missing``: {name: package}) raises an
+    ImportError naming the package when a node asks for it."""
+
+    missing: dict = {}
+
+    def __getattr__(self, name: str):
+        if name in self.missing:
+            raise _no_wheel(name, self.missing[name])
+        raise AttributeError(name)
+
+
+def _real_message_type(type_name: str) -> type:
+    """The rosidl class of ``"pkg/msg/Name"`` (rosidl_runtime_py.utilities.get_message, which has no wheel)."""
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def _optional(module: str, names: tuple[str, ...]) -> dict:
+    """{name: the real thing} from ``module``; under PEGASUS_ROS=rclpy, where it does not import, {} with the
+    names filed in ``_Messages.missing`` (elsewhere the ImportError goes on: auto falls back to the stand-in)."""
+    try:
+        loaded = importlib.import_module(module)
+        return {name: getattr(loaded, name) for name in names}
+    except ImportError:
+        if CHOICE != "rclpy":
+            raise
+        _Messages.missing.update({name: module.split(".")[0] for name in names})
+        return {}
+
+
+def _ros2_installed() -> bool:
+    """Whether everything the nodes use imports from ROS 2 (found, not imported: the wheels alone lack tf2_ros)."""
+    import importlib.util
+
+    return all(importlib.util.find_spec(name) is not None
+               for name in ("rclpy", "tf2_ros", "tf2_msgs", "vision_msgs", "sensor_msgs", "std_srvs"))
+
+
+try:
+    if CHOICE == "stand-in" or (CHOICE == "auto" and not _ros2_installed()):
+        raise ImportError(f"PEGASUS_ROS={CHOICE}")
     import rclpy
     from geometry_msgs.msg import Pose, PoseStamped, TransformStamped
-    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message as serialize
-    from rosidl_runtime_py.utilities import get_message as message_type
     from sensor_msgs.msg import CameraInfo, Image
     from std_msgs.msg import Header, String
     from std_srvs.srv import Trigger
-    from tf2_msgs.msg import TFMessage
-    from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
-    from vision_msgs.msg import Detection3D, Detection3DArray, ObjectHypothesisWithPose
 
-    msgs = types.SimpleNamespace(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped,
+    try:
+        from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
+    except ImportError:
+        if CHOICE != "rclpy":
+            raise
+        StaticTransformBroadcaster = _NotInRosWheels("tf2_ros", "StaticTransformBroadcaster")
+        TransformBroadcaster = _NotInRosWheels("tf2_ros", "TransformBroadcaster")
+    message_type = _real_message_type
+    msgs = _Messages(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped,
                                  CameraInfo=CameraInfo, Image=Image, Header=Header, String=String, Trigger=Trigger,
-                                 TFMessage=TFMessage,
-                                 Detection3D=Detection3D, Detection3DArray=Detection3DArray,
-                                 ObjectHypothesisWithPose=ObjectHypothesisWithPose)
+                                 **_optional("tf2_msgs.msg", ("TFMessage",)),
+                                 **_optional("vision_msgs.msg", ("Detection3D", "Detection3DArray",
+                                                                 "ObjectHypothesisWithPose")))
     REAL_ROS = True
 except ImportError:
+    if CHOICE == "rclpy":
+        raise
     from nodes import compat as rclpy
     from nodes import msgs
     from nodes.compat import (
         DurabilityPolicy,
+        ExternalShutdownException,
         MultiThreadedExecutor,
         Node,
         Parameter,
@@ -48,7 +127,6 @@ except ImportError:
     from nodes.msgs import serialize
 
     REAL_ROS = False
-
 
 
 def latched(depth: int = 1):
@@ -77,7 +155,7 @@ def run_node(node_class, args=None) -> None:
     node = node_class()
     try:
         rclpy.spin(node)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C (rclpy's signal handler shuts the context down)
         pass
     finally:
         node.destroy_node()

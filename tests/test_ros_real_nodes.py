@@ -1,0 +1,79 @@
+"""A node of the stack under real rclpy: camera_node in a process of its own (PEGASUS_ROS=rclpy: the ROS 2 Jazzy
+wheels of the ros extra, Fast DDS) plays an image folder to this test's own rclpy node, on a DDS domain of this
+test process's own; what arrives is the folder's images with their CameraInfo. Without the wheels it is
+skipped; a ROS 2 install runs every node on real rclpy anyway."""
+
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from conftest import ROS_DOMAIN_ID, ros_implementation, spin_until
+
+from nodes.conversions import image_to_numpy
+
+
+def node_env() -> dict:
+    return {**os.environ, "PEGASUS_ROS": "rclpy", "ROS_DOMAIN_ID": str(ROS_DOMAIN_ID),
+            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+
+
+def test_camera_node_publishes_a_folder_over_dds_to_another_process(tmp_path):
+    ros = ros_implementation("rclpy")
+    rng = np.random.default_rng(3)
+    images = [rng.integers(0, 256, (24, 32, 3), dtype=np.uint8) for _ in range(3)]
+    for k, rgb in enumerate(images):
+        cv2.imwrite(str(tmp_path / f"{k:02d}.png"), rgb[..., ::-1])
+    ros.init()
+    node = subprocess.Popen(
+        [sys.executable, "-c", "from nodes.camera_node import main; main()", "--ros-args", "-p",
+         f"folder:={tmp_path}", "-p", "rate:=20.0", "-p", "fx:=30.0", "-p", "frame_id:=cam"],
+        env=node_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        probe = ros.Node("probe")
+        got = {"image": [], "camera_info": []}
+        for topic, type_name in (("image", "sensor_msgs/msg/Image"), ("camera_info", "sensor_msgs/msg/CameraInfo")):
+            probe.create_subscription(ros.message(type_name), topic, got[topic].append, 10)
+        executor = ros.SingleThreadedExecutor()
+        executor.add_node(probe)
+        arrived = spin_until(executor, lambda: len(got["image"]) >= 4 and len(got["camera_info"]) >= 4, timeout=90)
+        assert arrived, (got, node.poll(), node.stderr.read() if node.poll() is not None else "")
+        publishers = probe.get_publishers_info_by_topic("image")
+        assert [(p.node_name, p.topic_type) for p in publishers] == [("camera_node", "sensor_msgs/msg/Image")]
+    finally:
+        node.send_signal(signal.SIGINT)
+        out, err = node.communicate(timeout=30)
+        ros.rclpy.shutdown()
+    assert node.returncode == 0 and "Traceback" not in err, err  # Ctrl-C ends it cleanly
+    # each image is one of the folder's, in the folder's order, with its CameraInfo (same stamp, K from fx)
+    index = [next(k for k, rgb in enumerate(images) if np.array_equal(image_to_numpy(msg), rgb))
+             for msg in got["image"]]
+    assert all((b - a) % 3 == 1 for a, b in zip(index, index[1:])), index
+    stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in got["image"]}
+    for info in got["camera_info"]:
+        assert (info.width, info.height, info.header.frame_id, info.distortion_model) == (32, 24, "cam", "plumb_bob")
+        np.testing.assert_array_equal(np.array(info.k).reshape(3, 3), [[30, 0, 15.5], [0, 30, 11.5], [0, 0, 1]])
+    assert len(stamps & {(m.header.stamp.sec, m.header.stamp.nanosec) for m in got["camera_info"]}) >= 3
+
+
+def test_a_node_that_needs_a_package_without_a_wheel_says_which():
+    """tf2_ros, tf2_msgs and vision_msgs have no wheels: under PEGASUS_ROS=rclpy the nodes that need them refuse
+    to start, naming the package (a ROS 2 install has them; the stand-in has its own)."""
+    pytest.importorskip("rclpy", reason="real rclpy comes with the ros extra (pip install '.[ros]')")
+    if importlib.util.find_spec("tf2_ros") or importlib.util.find_spec("vision_msgs"):
+        pytest.skip("a ROS 2 install: tf2_ros and vision_msgs are there")
+    probe = ("import nodes.ros as r\nassert r.REAL_ROS and r.rclpy.__name__ == 'rclpy'\n"
+             "from nodes.inference_node import InferenceNode\nfrom nodes.robot_node import RobotNode\n"
+             "r.rclpy.init()\nfor make in (RobotNode, InferenceNode):\n    try:\n        make()\n"
+             "    except ImportError as exc:\n        print(exc)\n")
+    result = subprocess.run([sys.executable, "-c", probe], env=node_env(), capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines() == [
+        "StaticTransformBroadcaster needs ROS 2's tf2_ros, which has no wheel: run this node in a ROS 2 install "
+        "(source its setup.bash) or on the stand-in (PEGASUS_ROS=stand-in)",
+        "Detection3DArray needs ROS 2's vision_msgs, which has no wheel: run this node in a ROS 2 install "
+        "(source its setup.bash) or on the stand-in (PEGASUS_ROS=stand-in)"]
