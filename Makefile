@@ -52,7 +52,7 @@ $(STAMP): pyproject.toml setup.py setup.cfg | system-deps
 	  || { echo "ERROR: $(PYTHON) is too old; set PYTHON=python3.11"; exit 1; }
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,ros]'
+	$(BIN)/python -m pip install -q -e '.[test,ros]' && $(BIN)/python -m nodes.ros_interfaces
 	touch $(STAMP)
 
 clean:

@@ -294,3 +294,62 @@ def run(path: str | Path, overrides: list[str], timeout: float | None = None) ->
             compat.try_shutdown(node.context)
         compat.try_shutdown(graph)
     return [node for node, _ in built]
+
+
+def run_processes(path: str | Path, overrides: list[str], env: dict | None = None, timeout: float | None = None,
+                  log_dir: str | Path | None = None) -> dict[str, int]:
+    """Run a launch file as ``ros2 launch`` does, on the real rclpy: every Node action a process of its own
+    (``nodes.<executable>``'s ``main`` under ``PEGASUS_ROS=rclpy``, its parameters in a params file), until a
+    node whose action has ``on_exit=Shutdown()`` exits, every node has, or ``timeout`` seconds pass; then Ctrl-C
+    (SIGINT) to the others. ``env``: more environment (``ROS_DOMAIN_ID``); ``log_dir``: each node's output in
+    ``<executable>.log``. Returns {executable: exit code}."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    import yaml
+
+    description = load_description(path)
+    arguments = resolve_arguments(description, parse_overrides(overrides))
+    env = {**os.environ, "PEGASUS_ROS": "rclpy", **(env or {})}
+    running, logs = [], []
+    with tempfile.TemporaryDirectory(prefix="pegasus-launch-") as tmp:
+        try:
+            for entity in description.entities:
+                if not isinstance(entity, Node) or (entity.condition and not entity.condition.evaluate(arguments)):
+                    continue
+                params = {}
+                for group in entity.parameters:
+                    params.update({k: parameter_value(k, v, arguments) for k, v in group.items()})
+                params_file = Path(tmp) / f"{entity.executable}.yaml"
+                params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
+                out = open(Path(log_dir) / f"{entity.executable}.log", "w") if log_dir else subprocess.DEVNULL
+                logs.append(out)
+                running.append((entity, subprocess.Popen(
+                    [sys.executable, "-c", f"from nodes.{entity.executable} import main; main()", "--ros-args",
+                     "--params-file", str(params_file)], env=env, stdout=out, stderr=subprocess.STDOUT)))
+            t0 = time.monotonic()
+            while not any(isinstance(entity.on_exit, Shutdown) and process.poll() is not None
+                          for entity, process in running):
+                if all(process.poll() is not None for _, process in running):
+                    break
+                if timeout is not None and time.monotonic() - t0 > timeout:
+                    break
+                time.sleep(0.2)
+        finally:
+            for _, process in running:
+                if process.poll() is None:
+                    process.send_signal(signal.SIGINT)
+            for _, process in running:
+                try:
+                    process.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
+            for out in logs:
+                if out is not subprocess.DEVNULL:
+                    out.close()
+    return {entity.executable: process.returncode for entity, process in running}

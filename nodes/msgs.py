@@ -222,6 +222,8 @@ def to_rosbags(msg):
                 value = [to_rosbags(v) for v in value]
             elif item[0] in _TYPECODES:
                 value = np.asarray(value, dtype=np.dtype(item[0] if item[0] in _FLOATS else _TYPECODES[item[0]]))
+            elif item[0] == "bool":  # rosbags writes bool arrays from numpy
+                value = np.asarray(value, dtype=bool)
             else:
                 value = list(value)
         values[name] = value
@@ -244,7 +246,7 @@ def from_rosbags(instance):
             elif kind == Nodetype.SEQUENCE and item[0] in _TYPECODES:
                 value = array.array(_TYPECODES[item[0]], np.ascontiguousarray(value).tobytes())
             elif item[0] not in _TYPECODES:
-                value = list(value)
+                value = value.tolist() if isinstance(value, np.ndarray) else list(value)  # bool[]: numpy here
         values[name] = value
     return message_class(instance.__msgtype__)(**values)
 

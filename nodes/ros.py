@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import types
 
 # Which implementation: "auto" (the real rclpy where ROS 2 is installed, with tf2_ros and vision_msgs: a ROS 2
@@ -92,19 +93,28 @@ try:
     from std_msgs.msg import Header, String
     from std_srvs.srv import Trigger
 
-    try:
-        from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
-    except ImportError:
-        if CHOICE != "rclpy":
-            raise
-        StaticTransformBroadcaster = _NotInRosWheels("tf2_ros", "StaticTransformBroadcaster")
-        TransformBroadcaster = _NotInRosWheels("tf2_ros", "TransformBroadcaster")
     message_type = _real_message_type
     msgs = _Messages(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped,
                                  CameraInfo=CameraInfo, Image=Image, Header=Header, String=String, Trigger=Trigger,
                                  **_optional("tf2_msgs.msg", ("TFMessage",)),
                                  **_optional("vision_msgs.msg", ("Detection3D", "Detection3DArray",
                                                                  "ObjectHypothesisWithPose")))
+    try:
+        from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
+    except ImportError:
+        if CHOICE != "rclpy":
+            raise
+        if "TFMessage" in _Messages.missing:
+            StaticTransformBroadcaster = _NotInRosWheels("tf2_ros", "StaticTransformBroadcaster")
+            TransformBroadcaster = _NotInRosWheels("tf2_ros", "TransformBroadcaster")
+        else:  # tf2_msgs built by nodes.ros_interfaces: tf2_ros's two broadcasters are a publisher each
+            from nodes import compat as _compat
+
+            class TransformBroadcaster(_compat.TransformBroadcaster):
+                message, qos_profile = msgs.TFMessage, QoSProfile
+
+            class StaticTransformBroadcaster(_compat.StaticTransformBroadcaster):
+                message, qos_profile, transient_local = msgs.TFMessage, QoSProfile, DurabilityPolicy.TRANSIENT_LOCAL
     REAL_ROS = True
 except ImportError:
     if CHOICE == "rclpy":
@@ -151,12 +161,19 @@ def finish(node) -> None:
 def run_node(node_class, args=None) -> None:
     """init, spin one node until its context shuts down (``finish``) or Ctrl-C, clean up: each node module's
     ``main``."""
+    if REAL_ROS:  # Ctrl-C: rclpy's handler shuts the context down (spin ends, the node is destroyed) and then
+        # calls Python's, which would raise KeyboardInterrupt wherever a callback is (a render inside numba)
+        signal.signal(signal.SIGINT, lambda signum, frame: None)
     rclpy.init(args=args)
     node = node_class()
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C (rclpy's signal handler shuts the context down)
         pass
+    except Exception:
+        if rclpy.ok(context=node.context):
+            raise
+        # a callback that was running when Ctrl-C shut the context down (a publish into it fails): the end
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
