@@ -1,6 +1,7 @@
 """The ROS 2 API the nodes are written against: the real rclpy and message packages when they all import (a
 ROS 2 install), otherwise the stand-in layer (``nodes.compat``, ``nodes.msgs``); ``PEGASUS_ROS=rclpy`` takes
-the real rclpy with the ROS 2 wheels of the ros extra alone. Nodes import everything from here:
+the real rclpy from the ros extra's wheels, with tf2_msgs and vision_msgs as ``nodes.ros_interfaces`` builds
+them and tf2_ros's broadcasters from here. Nodes import everything from here:
 
     from nodes.ros import rclpy, Node, msgs, QoSProfile
 """
@@ -13,9 +14,8 @@ import signal
 import types
 
 # Which implementation: "auto" (the real rclpy where ROS 2 is installed, with tf2_ros and vision_msgs: a ROS 2
-# install or workspace; else the stand-in), "rclpy" (the real rclpy with the message packages there are: with
-# only the ros extra's wheels, a node that needs tf2_ros, tf2_msgs or vision_msgs refuses to start, naming
-# them), or "stand-in".
+# install or workspace; else the stand-in), "rclpy" (the real rclpy with the message packages there are: where
+# tf2_msgs or vision_msgs is missing, a node that needs it refuses to start, naming it), or "stand-in".
 CHOICE = os.environ.get("PEGASUS_ROS", "auto")
 if CHOICE not in ("auto", "rclpy", "stand-in"):
     raise ImportError(f"PEGASUS_ROS must be auto, rclpy or stand-in, got {CHOICE!r}")
@@ -25,13 +25,14 @@ os.environ.setdefault("ROS_PYTHON_CHECK_FIELDS", "1")
 
 
 def _no_wheel(name: str, package: str) -> ImportError:
-    return ImportError(f"{name} needs ROS 2's {package}, which has no wheel: run this node in a ROS 2 install "
-                       "(source its setup.bash) or on the stand-in (PEGASUS_ROS=stand-in)")
+    return ImportError(f"{name} needs ROS 2's {package}, which has no wheel: build it into this environment "
+                       "(python -m nodes.ros_interfaces), run in a ROS 2 install or on the stand-in "
+                       "(PEGASUS_ROS=stand-in)")
 
 
 class _NotInRosWheels:
-    """Stands for a tf2_ros broadcaster under PEGASUS_ROS=rclpy with the wheels alone: making one raises an
-    ImportError naming tf2_ros."""
+    """Stands for a tf2_ros broadcaster under PEGASUS_ROS=rclpy without tf2_msgs: making one raises an
+    ImportError naming tf2_msgs."""
 
     def __init__(self, package: str, name: str):
         self.package, self.name = package, name
@@ -94,19 +95,18 @@ try:
     from std_srvs.srv import Trigger
 
     message_type = _real_message_type
-    msgs = _Messages(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped,
-                                 CameraInfo=CameraInfo, Image=Image, Header=Header, String=String, Trigger=Trigger,
-                                 **_optional("tf2_msgs.msg", ("TFMessage",)),
-                                 **_optional("vision_msgs.msg", ("Detection3D", "Detection3DArray",
-                                                                 "ObjectHypothesisWithPose")))
+    msgs = _Messages(Pose=Pose, PoseStamped=PoseStamped, TransformStamped=TransformStamped, CameraInfo=CameraInfo,
+                     Image=Image, Header=Header, String=String, Trigger=Trigger,
+                     **_optional("tf2_msgs.msg", ("TFMessage",)),
+                     **_optional("vision_msgs.msg", ("Detection3D", "Detection3DArray", "ObjectHypothesisWithPose")))
     try:
         from tf2_ros import StaticTransformBroadcaster, TransformBroadcaster
     except ImportError:
         if CHOICE != "rclpy":
             raise
         if "TFMessage" in _Messages.missing:
-            StaticTransformBroadcaster = _NotInRosWheels("tf2_ros", "StaticTransformBroadcaster")
-            TransformBroadcaster = _NotInRosWheels("tf2_ros", "TransformBroadcaster")
+            StaticTransformBroadcaster = _NotInRosWheels("tf2_msgs", "StaticTransformBroadcaster")
+            TransformBroadcaster = _NotInRosWheels("tf2_msgs", "TransformBroadcaster")
         else:  # tf2_msgs built by nodes.ros_interfaces: tf2_ros's two broadcasters are a publisher each
             from nodes import compat as _compat
 

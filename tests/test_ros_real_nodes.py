@@ -1,7 +1,7 @@
-"""A node of the stack under real rclpy: camera_node in a process of its own (PEGASUS_ROS=rclpy: the ROS 2 Jazzy
-wheels of the ros extra, Fast DDS) plays an image folder to this test's own rclpy node, on a DDS domain of this
-test process's own; what arrives is the folder's images with their CameraInfo. Without the wheels it is
-skipped; a ROS 2 install runs every node on real rclpy anyway."""
+"""Nodes of the stack under real rclpy (PEGASUS_ROS=rclpy: the ROS 2 Jazzy wheels of the ros extra, Fast DDS), each
+in a process of its own talking to this test's own rclpy node on a DDS domain of this test process's own:
+camera_node plays an image folder (what arrives is the folder's images with their CameraInfo); TF and
+detections travel in the message packages nodes.ros_interfaces builds. Skipped without the wheels."""
 
 import os
 import signal
@@ -60,9 +60,9 @@ def test_camera_node_publishes_a_folder_over_dds_to_another_process(tmp_path):
 
 
 def test_a_node_that_needs_a_package_without_a_wheel_says_which():
-    """tf2_ros has no wheel, and tf2_msgs and vision_msgs have none either until nodes.ros_interfaces builds
-    them: where they are not there (here: hidden from the import system), under PEGASUS_ROS=rclpy the nodes that
-    need them refuse to start, naming the package."""
+    """tf2_msgs and vision_msgs have no wheels: where nodes.ros_interfaces has not built them (here: hidden from
+    the import system, with tf2_ros), under PEGASUS_ROS=rclpy the nodes that need them refuse to start, naming
+    the package."""
     pytest.importorskip("rclpy", reason="real rclpy comes with the ros extra (pip install '.[ros]')")
     probe = ("import sys\nfor name in ('tf2_ros', 'tf2_msgs', 'tf2_msgs.msg', 'vision_msgs', 'vision_msgs.msg'):\n"
              "    sys.modules[name] = None  # not installed\n"
@@ -72,11 +72,10 @@ def test_a_node_that_needs_a_package_without_a_wheel_says_which():
              "    except ImportError as exc:\n        print(exc)\n")
     result = subprocess.run([sys.executable, "-c", probe], env=node_env(), capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.splitlines() == [
-        "StaticTransformBroadcaster needs ROS 2's tf2_ros, which has no wheel: run this node in a ROS 2 install "
-        "(source its setup.bash) or on the stand-in (PEGASUS_ROS=stand-in)",
-        "Detection3DArray needs ROS 2's vision_msgs, which has no wheel: run this node in a ROS 2 install "
-        "(source its setup.bash) or on the stand-in (PEGASUS_ROS=stand-in)"]
+    advice = ("which has no wheel: build it into this environment (python -m nodes.ros_interfaces), run in a ROS 2 "
+              "install or on the stand-in (PEGASUS_ROS=stand-in)")
+    assert result.stdout.splitlines() == [f"StaticTransformBroadcaster needs ROS 2's tf2_msgs, {advice}",
+                                          f"Detection3DArray needs ROS 2's vision_msgs, {advice}"]
 
 
 def test_the_built_message_packages_carry_tf_and_detections_between_processes():
