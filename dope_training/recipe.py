@@ -3,9 +3,10 @@ chosen from the object's size and the camera alone (``benchmarks/real.py``; docs
 choice did on real photos).
 
 Scale: the network sees every object at one size. ``focal_px`` is chosen so that the object's diameter spans
-``OBJECT_PX`` network-input pixels at the middle of the working distances, capped at the camera's own fx (real
-images are never enlarged), and the training images are rendered at that focal length and the matching image
-size, so they need no resampling. The crop holds the object with context around it.
+``OBJECT_PX`` network-input pixels at the middle of the working distances (at most ``MAX_ENLARGE`` times the
+camera's fx: a small object's real images are enlarged for the network), and the training images are rendered
+at that focal length or the camera's own, whichever is lower, so that a training image is never sharper than
+the real camera's at the network's scale. The crop holds the object with context around it.
 """
 
 from __future__ import annotations
@@ -16,10 +17,11 @@ import numpy as np
 
 from dope_training.targets import STRIDE
 
-OBJECT_PX = 40.0  # the object's diameter in network-input pixels at the middle distance
+OBJECT_PX = 64.0  # the object's diameter in network-input pixels at the middle distance
+MAX_ENLARGE = 2.0  # the network-input focal length is at most this many times the camera's fx
 CROP_PX = 128
 NEGATIVES = 0.3
-VARIANT = "light"  # the network the recipe trains (TrainConfig.variant)
+VARIANT = "pretrained"  # the network the recipe trains (TrainConfig.variant)
 # the detection score is the lowest at which the network leaves this many false positives per image on generated
 # held-out frames (evaluate.score_threshold)
 HELD_OUT_FALSE_POSITIVES = 0.25
@@ -36,15 +38,15 @@ class RealCamera:
 
 def network_focal(diameter_m: float, distance_m: tuple[float, float], camera: RealCamera) -> float:
     """The network-input focal length (px): the object's diameter (m) spans OBJECT_PX at the middle of
-    ``distance_m`` (m), at most the camera's fx."""
+    ``distance_m`` (m), at most MAX_ENLARGE times the camera's fx."""
     middle = 0.5 * (distance_m[0] + distance_m[1])
-    return float(min(OBJECT_PX * middle / diameter_m, camera.K[0, 0]))
+    return float(min(OBJECT_PX * middle / diameter_m, MAX_ENLARGE * camera.K[0, 0]))
 
 
 def training_camera(focal_px: float, camera: RealCamera) -> dict:
     """The generate config's camera for training images at ``focal_px``: the real camera scaled by focal_px /
-    fx (size rounded to a multiple of STRIDE), fields of ``CameraConfig``."""
-    s = focal_px / camera.K[0, 0]
+    fx, at most 1 (size rounded to a multiple of STRIDE), fields of ``CameraConfig``."""
+    s = min(focal_px / camera.K[0, 0], 1.0)
     width, height = (max(STRIDE, STRIDE * round(v * s / STRIDE)) for v in (camera.width, camera.height))
     sx, sy = width / camera.width, height / camera.height
     return {"width": width, "height": height, "fx": round(camera.K[0, 0] * sx, 3), "fy": round(camera.K[1, 1] * sy, 3),

@@ -32,10 +32,12 @@ def test_trunk_takes_every_tensor_of_the_installed_imagenet_checkpoint(no_downlo
     assert torch.equal(state["stem.1.weight"], source["_conv_stem.weight"])
     assert torch.equal(state["blocks.3.depthwise.1.weight"], source["_blocks.3._depthwise_conv.weight"])
     assert torch.equal(state["blocks.4.project.2.running_var"], source["_blocks.4._bn2.running_var"])
-    used = {k for k in source if k.startswith(("_conv_stem", "_bn0", *(f"_blocks.{i}." for i in range(5))))}
-    assert len(used) == len(state)  # one checkpoint tensor for each of ours, none left over in blocks 0-4
-    features = trunk.eval()(torch.rand(1, 3, 64, 96) * 2 - 1)
-    assert tuple(features.shape) == (1, 40, 8, 12) and torch.isfinite(features).all()
+    assert torch.equal(state["blocks.10.expand.1.weight"], source["_blocks.10._expand_conv.weight"])
+    used = {k for k in source if k.startswith(("_conv_stem", "_bn0", *(f"_blocks.{i}." for i in range(11))))}
+    assert len(used) == len(state)  # one checkpoint tensor for each of ours, none left over in blocks 0-10
+    for h, w in ((64, 96), (72, 120)):  # stride-8 grids of even and odd size
+        features = trunk.eval()(torch.rand(1, 3, h, w) * 2 - 1)
+        assert tuple(features.shape) == (1, 152, h // 8, w // 8) and torch.isfinite(features).all()
 
 
 def test_missing_package_or_wrong_file_is_one_clear_error(monkeypatch, tmp_path):

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dope_training.recipe import OBJECT_PX, RealCamera, network_focal, training_camera
+from dope_training.recipe import MAX_ENLARGE, OBJECT_PX, RealCamera, network_focal, training_camera
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 
@@ -18,15 +18,18 @@ ROOT = Path(__file__).resolve().parents[1]
 KINECT = RealCamera(np.array([[572.41, 0, 325.26], [0, 573.57, 242.04], [0, 0, 1]]), 640, 480)
 
 
-def test_the_network_sees_every_object_at_one_size_and_real_images_are_never_enlarged():
-    for diameter in (0.05, 0.1, 0.15):
+def test_the_network_sees_every_object_at_one_size_and_real_images_are_enlarged_at_most_max_enlarge():
+    for diameter in (0.05, 0.1, 0.15, 0.3):
         focal = network_focal(diameter, (0.4, 1.4), KINECT)
-        assert focal == pytest.approx(min(OBJECT_PX * 0.9 / diameter, 572.41))
-    assert network_focal(0.02, (0.4, 1.4), KINECT) == pytest.approx(572.41)  # a tiny object: the camera's own
+        assert focal == pytest.approx(min(OBJECT_PX * 0.9 / diameter, MAX_ENLARGE * 572.41))
+        # the object's diameter at 0.9 m, in network pixels
+        assert focal * diameter / 0.9 == pytest.approx(OBJECT_PX) or focal == pytest.approx(MAX_ENLARGE * 572.41)
+    assert network_focal(0.02, (0.4, 1.4), KINECT) == pytest.approx(MAX_ENLARGE * 572.41)  # a tiny object
 
 
 def test_the_training_camera_is_the_real_one_scaled_to_the_network_focal_length():
     rng = np.random.default_rng(0)
+    assert training_camera(900.0, KINECT) == training_camera(572.41, KINECT)  # never sharper than the camera
     for focal in (250.0, 353.0, 572.41):
         cam = training_camera(focal, KINECT)
         assert cam["width"] % 8 == 0 and cam["height"] % 8 == 0

@@ -1,0 +1,113 @@
+"""Where a generated frame's time goes: ``pegasus generate`` with the defaults (640x480, 3-6 demo objects on the
+demo wooden table, contact shadows, appearance randomisation, distractors) in one process, each stage of
+``dataset.generate`` timed (wall clock, summed over the run) and shown per frame beside the frame's total.
+
+Usage: python benchmarks/generate_profile.py [--scenes 3] [--frames 10] [--objects demo|DIR/models] [--device cpu]
+
+``--objects DIR`` takes the objects from a BOP ``models`` folder instead (``obj_*.ply`` in mm, imported once):
+the frame cost of large scanned meshes. Stages that run on the writer threads (image encoding and writing)
+overlap the next frame's render; they are listed apart.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import platform
+import tempfile
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import pegasus_gen.dataset.generate as gen
+from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.importers import import_mesh
+from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.dataset.config import load_config
+
+DEMO_OBJECTS = ("[{asset: 1, count: [0, 1]}, {asset: 2, count: [0, 1]}, {asset: 5, count: [0, 1]},"
+                " {asset: 7, count: [1, 1]}, {asset: 8, count: [1, 2]}]")
+# (label, attribute of pegasus_gen.dataset.generate): the stages of one scene, in order
+STAGES = (("assets' models + models_eval (once)", "write_models"),
+          ("physics drop (per scene)", "drop_objects"),
+          ("camera trajectory (per scene)", "camera_trajectory"),
+          ("appearance + contact shadows", "place_objects"),
+          ("render", "render"),
+          ("camera effects", "camera_image"),
+          ("label ray casts", "object_depth_canvas"),
+          ("masks + gt_info", "gt_info_entry"),
+          ("COCO (per scene)", "scene_coco"))
+THREADED = "image encoding + writing (writer threads)"
+
+
+class Timer:
+    """Sums the wall-clock time of wrapped callables by label (thread-safe)."""
+
+    def __init__(self):
+        self.seconds, self.lock = defaultdict(float), threading.Lock()
+
+    def wrap(self, label: str, fn):
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                with self.lock:
+                    self.seconds[label] += time.perf_counter() - t0
+        return timed
+
+
+def install(timer: Timer) -> None:
+    """Wrap the stages where ``dataset.generate`` looks them up."""
+    for label, name in STAGES:
+        if name == "gt_info_entry":
+            gen.bop.gt_info_entry = timer.wrap(label, gen.bop.gt_info_entry)
+        else:
+            setattr(gen, name, timer.wrap(label, getattr(gen, name)))
+    gen.write_image = timer.wrap(THREADED, gen.write_image)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", type=int, default=3)
+    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--objects", default="demo", help="demo, or a BOP models folder (obj_*.ply, mm)")
+    parser.add_argument("--device", default="cpu")
+    args = parser.parse_args()
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs")
+    with tempfile.TemporaryDirectory() as tmp:
+        lib = AssetLibrary(f"{tmp}/lib")
+        build_demo_library(lib)
+        objects, what = DEMO_OBJECTS, "3-6 demo objects"
+        if args.objects != "demo":
+            plys = sorted(Path(args.objects).glob("obj_*.ply"))[:8]
+            for ply in plys:
+                import_mesh(ply, f"m{ply.stem[4:]}", "object", lib, obj_id=int(ply.stem[4:]), scale=0.001)
+            objects = "[" + ", ".join(f"{{asset: m{p.stem[4:]}, count: [1, 1]}}" for p in plys) + "]"
+            what = f"{len(plys)} objects of {args.objects}"
+        common = [f"library={lib.root}", "workers=1", f"device={args.device}", "environments=[wooden_table]",
+                  "min_objects=3", f"objects={objects}"]
+        gen.generate(load_config(None, [f"output={tmp}/warm", *common, "scenes=1", "frames_per_scene=1"]))
+        timer = Timer()
+        install(timer)
+        t0 = time.perf_counter()
+        gen.generate(load_config(None, [f"output={tmp}/run", *common, f"scenes={args.scenes}",
+                                        f"frames_per_scene={args.frames}"]))
+        total = time.perf_counter() - t0
+    frames = args.scenes * args.frames
+    print(f"generate: {frames} frames (640x480, {what}, wooden_table, defaults, 1 process, {args.device}) in "
+          f"{total:.1f} s = {frames / total:.2f} frames/s, {1000 * total / frames:.0f} ms per frame")
+    def row(label: str, seconds: float, share: bool = True) -> None:
+        tail = f"{100 * seconds / total:5.1f} %" if share else "(overlapped)"
+        print(f"  {label:42s} {1000 * seconds / frames:7.1f} ms/frame {tail}")
+
+    for label, _ in STAGES:
+        row(label, timer.seconds[label])
+    row("rest (loop, JSON, waiting for writers)", total - sum(timer.seconds[label] for label, _ in STAGES))
+    row(THREADED, timer.seconds[THREADED], share=False)
+
+if __name__ == "__main__":
+    main()
