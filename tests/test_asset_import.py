@@ -5,6 +5,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from pegasus_gen.assets.collision import MeshParams
 from pegasus_gen.assets.importers import import_mesh, import_splat
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
@@ -50,6 +51,17 @@ def test_object_mesh_import_centres_the_bounding_box_and_applies_the_transform(t
     assert np.allclose(asset.mesh.bounds, [[-0.04, -0.04, -0.05], [0.04, 0.04, 0.05]], atol=1e-3)
     assert np.allclose(asset.splats.means.mean(0), 0, atol=0.003)
     assert asset.manifest.obj_id == 3 and AssetLibrary(tmp_path / "lib").get(3).name == "cup"
+
+
+def test_a_fine_imported_model_collides_as_a_closed_decimated_copy_and_stays_the_surface(tmp_path):
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=50.0)  # 20,480 triangles, mm
+    sphere.export(tmp_path / "ball.ply")
+    asset = import_mesh(tmp_path / "ball.ply", "ball", "object", AssetLibrary(tmp_path / "lib"), obj_id=4, scale=0.001)
+    assert len(sphere.faces) > 10 * MeshParams().max_triangles
+    assert 0.3 * MeshParams().max_triangles <= len(asset.mesh.faces) <= MeshParams().max_triangles
+    assert asset.mesh.is_watertight and abs(asset.mesh.volume / sphere.volume * 1e9 - 1) < 0.02
+    assert len(asset.surface.faces) >= len(sphere.faces)  # the labels' model keeps every triangle
+    assert np.allclose(asset.surface.vertices.mean(0), 0, atol=1e-3)
 
 
 def test_object_splat_import_builds_a_collision_mesh(tmp_path):

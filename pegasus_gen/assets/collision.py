@@ -100,6 +100,14 @@ def _decimate(smooth: o3d.geometry.TriangleMesh, params: MeshParams, closed: boo
     raise PegasusError("the decimated collision mesh is not closed; raise max_triangles")
 
 
+def decimate_mesh(mesh: trimesh.Trimesh, params: MeshParams = MeshParams()) -> trimesh.Trimesh:
+    """A closed ``mesh`` (e.g. an imported model) as a collision mesh: decimated to at most
+    ``params.max_triangles``, still closed (PegasusError when no decimation stays closed)."""
+    source = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices),
+                                       o3d.utility.Vector3iVector(mesh.faces))
+    return _decimate(source, params, closed=True)
+
+
 def splats_to_mesh(cloud: SplatCloud, params: MeshParams = MeshParams(), closed: bool = True
                    ) -> tuple[trimesh.Trimesh, dict]:
     """Collision mesh (metres, the cloud's frame) and a report {params, alpha, volume, watertight}.

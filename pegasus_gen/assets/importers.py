@@ -16,7 +16,7 @@ import trimesh
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.assets.collision import MeshParams, splats_to_mesh
+from pegasus_gen.assets.collision import MeshParams, decimate_mesh, splats_to_mesh
 from pegasus_gen.assets.library import Asset, AssetLibrary, AssetManifest, DropRegion, check_new_asset, save_asset
 from pegasus_gen.assets.surface import mesh_surface, splat_surface
 from pegasus_gen.errors import PegasusError
@@ -102,6 +102,11 @@ def _finish(cloud: SplatCloud, mesh: trimesh.Trimesh | None, name: str, kind: st
         manifest = AssetManifest(name=name, kind=kind, drop_region=_drop_region(cloud.means[on_plane]),
                                  support_height=0.0, **fields)
     else:  # an object (check_new_asset has checked kind and obj_id)
+        if mesh is not None and mesh.is_watertight and len(mesh.faces) > params.max_triangles:
+            try:  # a fine model (a scan's, a BOP model) collides as a decimated copy; it stays the surface
+                mesh = decimate_mesh(mesh, params)
+            except PegasusError:
+                mesh = None  # no decimation stayed closed: one from the splats, as for an open mesh
         if mesh is None or not mesh.is_watertight:
             mesh, report = splats_to_mesh(cloud, params)
             fields["geometry"] = {k: v for k, v in report.items() if k != "volume"}
