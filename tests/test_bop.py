@@ -19,7 +19,15 @@ from pegasus_gen.dataset.bop import (
     targets_bop19,
     write_bop_results,
 )
-from pegasus_gen.dataset.models import EVAL_SPACING, eval_model, models_info_entry, write_model_ply
+from pegasus_gen.dataset.models import (
+    EVAL_SPACING,
+    cached_eval_model,
+    eval_model,
+    model_extent,
+    model_ply_bytes,
+    models_info_entry,
+    write_model_ply,
+)
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.render.raycast import MeshRaycaster
 
@@ -72,6 +80,26 @@ def test_eval_model_resamples_the_surface_evenly_and_stays_closed():
         assert np.median(distance) < 0.1 * EVAL_SPACING and distance.max() < 0.5 * EVAL_SPACING
         edges = resampled.edges_unique_length
         assert 0.6 * EVAL_SPACING < np.median(edges) < 1.2 * EVAL_SPACING and edges.max() < 2 * EVAL_SPACING
+
+
+def test_evaluation_models_are_cached_by_surface_content_and_recomputed_when_unreadable(tmp_path):
+    box, ring = trimesh.creation.box((0.12, 0.05, 0.03)), trimesh.creation.annulus(0.02, 0.035, 0.03, sections=64)
+    for name, mesh in (("box", box), ("ring", ring)):
+        write_model_ply(tmp_path / f"{name}.ply", mesh)
+    cache = tmp_path / "cache"
+    data, extent, extent_eval = cached_eval_model(tmp_path / "box.ply", box, cache)
+    assert data == model_ply_bytes(eval_model(box))  # what eval_model gives, in the models_eval layout
+    assert extent == model_extent(box) and extent_eval == model_extent(eval_model(box))
+    (entry,) = cache.iterdir()
+    (entry / "eval.ply").write_bytes(b"kept")  # a second call reads the cache instead of resampling
+    assert cached_eval_model(tmp_path / "box.ply", box, cache)[0] == b"kept"
+    assert cached_eval_model(tmp_path / "ring.ply", ring, cache)[0] == model_ply_bytes(eval_model(ring))
+    assert len(list(cache.iterdir())) == 2  # another surface file, another entry
+    (entry / "info.json").write_text("{not json")
+    assert cached_eval_model(tmp_path / "box.ply", box, cache)[0] == data  # unreadable: recomputed, rewritten
+    blocked = tmp_path / "blocked"
+    blocked.write_text("a file where the cache folder should be")
+    assert cached_eval_model(tmp_path / "box.ply", box, blocked)[0] == data  # cannot be written: still right
 
 
 def test_models_info_diameter_is_the_largest_vertex_distance():

@@ -41,7 +41,7 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from pegasus_gen.assets.library import Asset, AssetLibrary
+from pegasus_gen.assets.library import SURFACE, Asset, AssetLibrary
 from pegasus_gen.dataset import bop
 from pegasus_gen.dataset.appearance import (
     environment_texture,
@@ -55,7 +55,7 @@ from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import CONFIG_FILE, GenerateConfig
 from pegasus_gen.dataset.distractors import Distractor, make_distractor
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
-from pegasus_gen.dataset.models import eval_model, models_info_entry, write_model_ply
+from pegasus_gen.dataset.models import cached_eval_model, symmetry_fields, write_model_ply
 from pegasus_gen.dataset.on_ray import build_on_ray, ray_session
 from pegasus_gen.dataset.physics import DropResult, drop_objects
 from pegasus_gen.errors import PegasusError
@@ -75,6 +75,7 @@ from pegasus_gen.splats.colour import blend_colour, shade_lambert, transform_col
 SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM, LIGHT_STREAM = 1, 2, 3, 4, 5
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
 RESUMABLE_KEYS = ("output", "library", "device", "workers", "ray")
+MODELS_CACHE = ".cache/models_eval"  # in the asset library: evaluation models by surface content (dataset.models)
 
 
 def camera_matrix(cfg: GenerateConfig) -> np.ndarray:
@@ -110,15 +111,20 @@ def load_assets(cfg: GenerateConfig) -> Assets:
 
 def write_models(out: Path, assets: Assets, cfg: GenerateConfig) -> None:
     """models/ (each object's surface: PLY in mm with colours, bbox-centred object frames), models_eval/ (the
-    surfaces resampled as BOP's), their models_info.json, and camera.json."""
-    for folder, model_of in (("models", lambda a: a.surface), ("models_eval", lambda a: eval_model(a.surface))):
-        info = {}
-        for obj_id, asset in sorted(assets.objects.items()):
-            mesh = model_of(asset)
-            write_model_ply(out / folder / f"obj_{obj_id:06d}.ply", mesh)
-            info[str(obj_id)] = {**models_info_entry(mesh, asset.manifest.symmetries_discrete,
-                                                     asset.manifest.symmetries_continuous), "name": asset.name}
-        _write_json(out / folder / "models_info.json", info)
+    surfaces resampled as BOP's, cached in the library's MODELS_CACHE), their models_info.json, and
+    camera.json."""
+    info, info_eval = {}, {}
+    for obj_id, asset in sorted(assets.objects.items()):
+        name = f"obj_{obj_id:06d}.ply"
+        write_model_ply(out / "models" / name, asset.surface)
+        ply, extent, extent_eval = cached_eval_model(asset.path / SURFACE, asset.surface,
+                                                     AssetLibrary(cfg.library).root / MODELS_CACHE)
+        write_atomic(out / "models_eval" / name, lambda f, data=ply: f.write(data))
+        symmetries = symmetry_fields(asset.manifest.symmetries_discrete, asset.manifest.symmetries_continuous)
+        info[str(obj_id)] = {**extent, **symmetries, "name": asset.name}
+        info_eval[str(obj_id)] = {**extent_eval, **symmetries, "name": asset.name}
+    _write_json(out / "models" / "models_info.json", info)
+    _write_json(out / "models_eval" / "models_info.json", info_eval)
     K = camera_matrix(cfg)
     _write_json(out / "camera.json", {"cx": K[0, 2], "cy": K[1, 2], "depth_scale": cfg.depth_scale,
                                       "fx": K[0, 0], "fy": K[1, 1], "height": cfg.camera.height,

@@ -11,6 +11,8 @@ evenly spread, and a closed model stays closed.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from pathlib import Path
 
@@ -22,9 +24,16 @@ from skimage.measure import marching_cubes
 from pegasus_gen.io.files import write_atomic
 
 EVAL_SPACING = 0.0015  # m between the vertices of an evaluation model (BOP's models_eval density)
+EVAL_CACHE_VERSION = 1  # part of the cache key: bump when eval_model or model_extent change their output
 
 
 def write_model_ply(path: str | os.PathLike, mesh: trimesh.Trimesh) -> Path:
+    """``model_ply_bytes`` of ``mesh`` written to ``path``."""
+    data = model_ply_bytes(mesh)
+    return write_atomic(path, lambda f: f.write(data))
+
+
+def model_ply_bytes(mesh: trimesh.Trimesh) -> bytes:
     """Binary PLY of ``mesh`` (metres) in millimetres: vertices (float x y z nx ny nz, uchar red green blue
     when the mesh has vertex colours), faces ``vertex_indices``; the layout bop_toolkit's loader reads."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64) * 1000.0
@@ -48,13 +57,7 @@ def write_model_ply(path: str | os.PathLike, mesh: trimesh.Trimesh) -> Path:
     face_table = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
     face_table["n"] = 3
     face_table["v"] = faces
-
-    def write(f):
-        f.write(header.encode("ascii"))
-        f.write(table.tobytes())
-        f.write(face_table.tobytes())
-
-    return write_atomic(path, write)
+    return header.encode("ascii") + table.tobytes() + face_table.tobytes()
 
 
 def eval_model(mesh: trimesh.Trimesh, max_cells: int = 200) -> trimesh.Trimesh:
@@ -88,13 +91,23 @@ def models_info_entry(mesh: trimesh.Trimesh, symmetries_discrete=(), symmetries_
     symmetries_discrete: 4x4 transforms (16 numbers, translation in m); symmetries_continuous:
     objects with ``axis`` and ``offset`` (m).
     """
+    return {**model_extent(mesh), **symmetry_fields(symmetries_discrete, symmetries_continuous)}
+
+
+def model_extent(mesh: trimesh.Trimesh) -> dict:
+    """The geometric models_info fields of ``mesh`` (metres) in mm: diameter, min_x.., size_x.."""
     v = np.asarray(mesh.vertices, dtype=np.float64) * 1000.0
     hull = np.asarray(trimesh.convex.convex_hull(v).vertices) if len(v) > 3 else v  # the diameter lies on the hull
     diameter = max(float(np.linalg.norm(hull[i:i + 256, None, :] - hull[None, :, :], axis=-1).max())
                    for i in range(0, len(hull), 256))  # in row blocks: a fine model's hull has thousands
     lo, hi = v.min(0), v.max(0)
-    info = {"diameter": diameter, "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
+    return {"diameter": diameter, "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
             "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]), "size_z": float(hi[2] - lo[2])}
+
+
+def symmetry_fields(symmetries_discrete=(), symmetries_continuous=()) -> dict:
+    """The symmetry fields of a models_info entry (mm), present only when there are symmetries."""
+    info = {}
     if len(symmetries_discrete):
         mats = []
         for sym in symmetries_discrete:
@@ -107,3 +120,27 @@ def models_info_entry(mesh: trimesh.Trimesh, symmetries_discrete=(), symmetries_
             {"axis": [float(a) for a in s.axis], "offset": [float(o) * 1000.0 for o in s.offset]}
             for s in symmetries_continuous]
     return info
+
+
+def cached_eval_model(surface_file: str | os.PathLike, mesh: trimesh.Trimesh, cache: str | os.PathLike
+                      ) -> tuple[bytes, dict, dict]:
+    """(the models_eval PLY of ``mesh`` (``model_ply_bytes`` of ``eval_model``), ``model_extent`` of ``mesh``,
+    that of its evaluation model): computed once per surface and kept in the folder ``cache``, keyed by the
+    SHA-256 of ``surface_file`` (the file ``mesh`` was loaded from) and EVAL_CACHE_VERSION, so a dataset made from
+    assets used before costs a file read instead of marching cubes and a convex hull. A cache that cannot be
+    read is recomputed; one that cannot be written is skipped."""
+    digest = hashlib.sha256(f"{EVAL_CACHE_VERSION}\0".encode() + Path(surface_file).read_bytes()).hexdigest()
+    ply, info = Path(cache) / digest / "eval.ply", Path(cache) / digest / "info.json"
+    try:
+        entries = json.loads(info.read_text())
+        return ply.read_bytes(), dict(entries["model"]), dict(entries["eval"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    resampled = eval_model(mesh)
+    data, entries = model_ply_bytes(resampled), {"model": model_extent(mesh), "eval": model_extent(resampled)}
+    try:
+        write_atomic(ply, lambda f: f.write(data))
+        write_atomic(info, lambda f: f.write(json.dumps(entries).encode()))  # last: it marks the entry complete
+    except OSError:  # a library this user cannot write to
+        pass
+    return data, entries["model"], entries["eval"]
