@@ -11,7 +11,10 @@ from __future__ import annotations
 import importlib
 import os
 import signal
+import sys
 import types
+
+from pegasus_gen.errors import PegasusError
 
 # Which implementation: "auto" (the real rclpy where ROS 2 is installed, with tf2_ros and vision_msgs: a ROS 2
 # install or workspace; else the stand-in), "rclpy" (the real rclpy with the message packages there are: where
@@ -160,12 +163,17 @@ def finish(node) -> None:
 
 def run_node(node_class, args=None) -> None:
     """init, spin one node until its context shuts down (``finish``) or Ctrl-C, clean up: each node module's
-    ``main``."""
+    ``main``. A node that refuses its parameters (PegasusError) ends the process with one line and exit code 2."""
     if REAL_ROS:  # Ctrl-C: rclpy's handler shuts the context down (spin ends, the node is destroyed) and then
         # calls Python's, which would raise KeyboardInterrupt wherever a callback is (a render inside numba)
         signal.signal(signal.SIGINT, lambda signum, frame: None)
     rclpy.init(args=args)
-    node = node_class()
+    try:
+        node = node_class()
+    except PegasusError as exc:  # parameters it refuses: one line and exit code 2, as the CLIs
+        rclpy.try_shutdown()
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C (rclpy's signal handler shuts the context down)

@@ -109,3 +109,36 @@ def test_the_built_message_packages_carry_tf_and_detections_between_processes():
         ros.rclpy.shutdown()
     assert [t.child_frame_id for t in got["tf"][0].transforms] == ["camera"]
     assert got["detections"][0].detections[0].id == "cup_0"
+
+
+def test_pegasus_launch_processes_runs_each_node_as_a_process_on_the_real_rclpy(tmp_path, monkeypatch, capsys):
+    from pegasus_gen.cli.main import main
+
+    ros_implementation("rclpy")
+    images = tmp_path / "images"
+    images.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(images / f"{k:03d}.png"), np.full((24, 32, 3), 40 * k, np.uint8))
+    path = tmp_path / "camera.launch.py"
+    path.write_text('''
+from nodes.launch import DeclareLaunchArgument, LaunchConfiguration, LaunchDescription, Node, Shutdown
+
+def generate_launch_description():
+    return LaunchDescription([
+        DeclareLaunchArgument("images"),
+        Node(package="pegasus", executable="camera_node", on_exit=Shutdown(),
+             parameters=[{"folder": LaunchConfiguration("images"), "rate": 50.0, "loop": False, "fx": 500.0}]),
+    ])
+''')
+    for key, value in node_env().items():
+        monkeypatch.setenv(key, value)
+    logs = tmp_path / "logs"
+    assert main(["launch", "--processes", "--log-dir", str(logs), str(path), f"images:={images}"]) == 0
+    assert "camera_node exited 0" in capsys.readouterr().out
+    assert (logs / "camera_node.log").is_file()
+    (tmp_path / "empty").mkdir()  # the node process gets the parameters: it refuses a folder without images
+    assert main(["launch", "--processes", "--log-dir", str(logs), str(path), f"images:={tmp_path / 'empty'}"]) == 1
+    assert "camera_node exited 2" in capsys.readouterr().out  # one line, as a CLI's bad input
+    assert (logs / "camera_node.log").read_text().startswith("error: camera_node: no images")
+    assert main(["launch", "--processes", str(path), "images=oops"]) == 2  # bad input: one line, code 2
+    assert "is not of the form name:=value" in capsys.readouterr().err

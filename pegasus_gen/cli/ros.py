@@ -9,11 +9,23 @@ from pegasus_gen.errors import PegasusError
 
 
 def cmd_launch(args) -> int:
-    from nodes.launch import run
+    import importlib.util
 
-    nodes = run(args.file, args.arguments)
-    print(f"launch: {len(nodes)} node(s) ran: {', '.join(n.get_name() for n in nodes)}")
-    return 0
+    from nodes.launch import run, run_processes
+
+    if not args.processes:
+        nodes = run(args.file, args.arguments)
+        print(f"launch: {len(nodes)} node(s) ran: {', '.join(n.get_name() for n in nodes)}")
+        return 0
+    if importlib.util.find_spec("rclpy") is None:
+        raise PegasusError("launch --processes runs each node on the real rclpy: install the ros extra "
+                           "(pip install '.[ros]') or ROS 2")
+    if args.log_dir:
+        Path(args.log_dir).mkdir(parents=True, exist_ok=True)
+    codes = run_processes(args.file, args.arguments, log_dir=args.log_dir)
+    print(f"launch: {len(codes)} process(es) on the real rclpy: "
+          f"{', '.join(f'{name} exited {code}' for name, code in codes.items())}")
+    return 0 if not any(codes.values()) else 1
 
 
 def cmd_sim_grasp(args) -> int:
@@ -53,6 +65,10 @@ def add_commands(sub) -> None:
                        epilog=f"installed launch files: {', '.join(installed_launch_files())}")
     p.add_argument("file", help="a *.launch.py file, or the name of an installed one")
     p.add_argument("arguments", nargs="*", metavar="name:=value")
+    p.add_argument("--processes", action="store_true",
+                   help="each node a process of its own on the real rclpy (the ros extra), talking DDS, as ros2 launch "
+                        "runs them; ROS_DOMAIN_ID from the environment (default: one process on the stand-in)")
+    p.add_argument("--log-dir", help="with --processes: each node's output in DIR/<executable>.log")
     p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("sim-grasp",
