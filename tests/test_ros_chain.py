@@ -9,9 +9,8 @@ import json
 import os
 
 import pytest
+from bag_reader import read_bag
 from conftest import ros_implementation
-from rosbags.rosbag2 import Reader
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from nodes.launch import find_launch_file, run, run_processes
 
@@ -19,21 +18,6 @@ pytestmark = pytest.mark.slow
 
 EVENT_TOPICS = ("/attempt", "/robot_status", "/tf_static")  # what attempts, not time, decide
 ROS2_ONLY = {"/rosout": "rcl_interfaces/msg/Log", "/parameter_events": "rcl_interfaces/msg/ParameterEvent"}
-
-
-def read_episode(path) -> dict:
-    """{topic: (type, [message])} of a bag, the messages of EVENT_TOPICS decoded with the bag's own definitions
-    (rosbags' reader refuses real rclpy's /parameter_events: Fast CDR ends them in more padding than it takes),
-    the others counted only."""
-    out, store = {}, get_typestore(Stores.EMPTY)
-    with Reader(path) as reader:
-        for connection in reader.connections:
-            store.register(get_types_from_msg(connection.msgdef.data, connection.msgtype))
-            out[connection.topic] = (connection.msgtype, [])
-        for connection, _, data in reader.messages():
-            decoded = connection.topic in EVENT_TOPICS
-            out[connection.topic][1].append(store.deserialize_cdr(data, connection.msgtype) if decoded else data)
-    return out
 
 
 def episode(library, out, host):
@@ -65,14 +49,17 @@ def test_sim_pick_place_under_real_rclpy_in_separate_processes_matches_the_stand
     for name, report in reports.items():
         assert (report["attempts"], report["successes"], report["pose_source"]) == (3, 3, "ground_truth"), name
         assert [r["object"] for r in report["records"]] == ["noodle_cup_red", "noodle_cup_curry", "noodle_cup_red"]
-    bags = {"real": read_episode(real / "episode"), "stand-in": read_episode(standin / "episode")}
+    # rosbags' reader refuses real rclpy's /parameter_events (Fast CDR ends them in more padding than it takes):
+    # only EVENT_TOPICS are decoded, the others counted
+    bags = {"real": read_bag(real / "episode", EVENT_TOPICS), "stand-in": read_bag(standin / "episode", EVENT_TOPICS)}
     types = {name: {topic: kind for topic, (kind, _) in bag.items()} for name, bag in bags.items()}
     assert types["real"] == types["stand-in"] | ROS2_ONLY
     counts = {name: {topic: len(messages) for topic, (_, messages) in bag.items()} for name, bag in bags.items()}
     for topic in EVENT_TOPICS:
         assert abs(counts["real"][topic] - counts["stand-in"][topic]) <= 1, (topic, counts)
-    assert [json.loads(m.data)["attempt"] for m in bags["real"]["/attempt"][1]] == [0, 1, 2]
-    assert {t.child_frame_id for m in bags["real"]["/tf_static"][1] for t in m.transforms} >= {"base_link", "camera"}
+    assert [json.loads(m.data)["attempt"] for _, m in bags["real"]["/attempt"][1]] == [0, 1, 2]
+    assert {t.child_frame_id for _, m in bags["real"]["/tf_static"][1] for t in m.transforms} >= {"base_link",
+                                                                                                   "camera"}
     for name, count in counts.items():  # each frame's image, depth and camera_info, in both
         assert count["/image"] >= 3 and abs(count["/image"] - count["/depth"]) <= 1, (name, count)
         assert abs(count["/image"] - count["/camera_info"]) <= 1, (name, count)
