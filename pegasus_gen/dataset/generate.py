@@ -114,12 +114,12 @@ def write_models(out: Path, assets: Assets, cfg: GenerateConfig) -> None:
     surfaces resampled as BOP's, cached in the library's MODELS_CACHE), their models_info.json, and
     camera.json."""
     info, info_eval = {}, {}
+    cache = AssetLibrary(cfg.library).root / MODELS_CACHE
     for obj_id, asset in sorted(assets.objects.items()):
         name = f"obj_{obj_id:06d}.ply"
         write_model_ply(out / "models" / name, asset.surface)
-        ply, extent, extent_eval = cached_eval_model(asset.path / SURFACE, asset.surface,
-                                                     AssetLibrary(cfg.library).root / MODELS_CACHE)
-        write_atomic(out / "models_eval" / name, lambda f, data=ply: f.write(data))
+        eval_ply, extent, extent_eval = cached_eval_model(asset.path / SURFACE, asset.surface, cache)
+        write_atomic(out / "models_eval" / name, lambda f, data=eval_ply: f.write(data))
         symmetries = symmetry_fields(asset.manifest.symmetries_discrete, asset.manifest.symmetries_continuous)
         info[str(obj_id)] = {**extent, **symmetries, "name": asset.name}
         info_eval[str(obj_id)] = {**extent_eval, **symmetries, "name": asset.name}
