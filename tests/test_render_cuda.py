@@ -10,12 +10,12 @@ from pegasus_gen.splats import procedural as synthetic
 pytestmark = [pytest.mark.gpu, pytest.mark.skipif(not cuda_status()[0], reason=f"no CUDA: {cuda_status()[1]}")]
 
 
-@pytest.mark.parametrize("eye", [[0.7, -0.5, 0.55], [-0.3, 0.6, 0.9], [0.05, 0.02, 1.2]])
-def test_cuda_and_cpu_backends_agree(eye):
+@pytest.mark.parametrize("eye,w,h", [([0.7, -0.5, 0.55], 320, 240), ([-0.3, 0.6, 0.9], 320, 240),
+                                     ([0.05, 0.02, 1.2], 320, 240), ([0.7, -0.5, 0.55], 640, 480)])
+def test_cuda_and_cpu_backends_agree(eye, w, h):
     rng = np.random.default_rng(0)
     env, objects, poses = synthetic.tabletop_scene(150_000, rng, sh_degree=3)
     scene = [env] + [o.transformed(T) for o, T in zip(objects, poses)]
-    w, h = 320, 240
     K = intrinsics_from_fov(w, h, 55)
     T = look_at(eye, [0, 0, 0.05])
     labels = tuple(range(7))
@@ -25,7 +25,8 @@ def test_cuda_and_cpu_backends_agree(eye):
     assert np.abs(cpu.rgb - gpu.rgb).mean() < 1 / 255
     both = (cpu.depth > 0) & (gpu.depth > 0)
     assert both.mean() > 0.5
-    assert np.median(np.abs(cpu.depth[both] - gpu.depth[both])) < 1e-3
+    # depth by the CPU's rule (blended depth planes): 0.02 mm (median) from the CPU's on the CPU rasteriser
+    assert np.median(np.abs(cpu.depth[both] - gpu.depth[both])) < 5e-4
     covered = cpu.alpha > 0.5
     assert (cpu.label[covered] == gpu.label[covered]).mean() > 0.99
     assert np.abs(cpu.label_weights - gpu.label_weights).mean() < 1e-3

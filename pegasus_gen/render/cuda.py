@@ -1,11 +1,14 @@
 """gsplat CUDA backend of :func:`pegasus_gen.render.renderer.render` (needs torch with CUDA and
 ``pip install '.[cuda]'``).
 
-Colour comes from gsplat's own SH evaluation (per part, so parts may differ in SH degree); the
-instance labels ride along as one-hot feature channels through the same blend, and depth as gsplat's
-"D" channel (sum of w z). gsplat samples pixel (u, v) at (u + 0.5, v + 0.5), so the principal point is
-shifted by +0.5 to keep the OpenCV convention of the CPU backend.
-Splat arrays are uploaded once per SplatCloud object and kept on the GPU while the object lives.
+A scene's splats are concatenated and uploaded once and kept on the GPU while the same parts are rendered
+again (the frames of a static scene). Per frame: colour from gsplat's SH evaluation; the instance labels as
+one-hot feature channels through the same blend; depth by the CPU renderer's rule, each splat's depth on a
+pixel's ray being a plane A + B u + C v over the image (:func:`pegasus_gen.render.differentiable.depth_planes`),
+rendered as three feature channels and evaluated per pixel (the CPU's clamp at 3.33 standard deviations of z
+aside: tests/test_depth_planes.py measures what it changes). gsplat samples pixel (u, v) at (u + 0.5, v + 0.5),
+so the principal point is shifted by +0.5 to keep the OpenCV convention of the CPU backend. The images come
+back to the host in one float32 copy.
 """
 
 from __future__ import annotations
@@ -15,22 +18,37 @@ import weakref
 import numpy as np
 import torch
 
-_DEVICE_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+from pegasus_gen.render.differentiable import depth_planes
+
+_SCENE: dict = {}  # the last scene uploaded: "parts" (weak references) and its device tensors
 
 
-def _on_gpu(cloud, device) -> dict:
-    """Device tensors of a cloud (uploaded on first use, cached for the cloud's lifetime)."""
-    cached = _DEVICE_CACHE.get(cloud)
-    if cached is None:
-        cached = {
-            "means": torch.from_numpy(cloud.means).to(device),
-            "quats": torch.from_numpy(cloud.quats_wxyz).to(device),
-            "scales": torch.from_numpy(cloud.log_scales).to(device).exp(),
-            "opacities": torch.sigmoid(torch.from_numpy(cloud.opacity_logits).to(device)),
-            "sh": torch.from_numpy(cloud.sh).to(device),
-        }
-        _DEVICE_CACHE[cloud] = cached
-    return cached
+def _scene_on_gpu(parts, label_index, device) -> dict:
+    """Device tensors of the splats of ``parts`` concatenated (uploaded when the parts differ from the last
+    call's): means [N, 3], quats [N, 4], log_scales [N, 3], scales [N, 3], opacities [N], sh [N, K, 3] (parts
+    of lower SH degree padded with zeros), sh_degree, labels [N] int64 dense label index."""
+    refs = _SCENE.get("parts", ())
+    if len(refs) == len(parts) and all(r() is p for r, p in zip(refs, parts)):
+        return _SCENE
+    k = max(p.sh.shape[1] for p in parts)
+
+    def upload(arrays, dtype=torch.float32):
+        return torch.from_numpy(np.concatenate(arrays)).to(device=device, dtype=dtype)
+
+    log_scales = upload([p.log_scales for p in parts])
+    _SCENE.clear()
+    _SCENE.update({
+        "parts": tuple(weakref.ref(p) for p in parts),
+        "means": upload([p.means for p in parts]),
+        "quats": upload([p.quats_wxyz for p in parts]),
+        "log_scales": log_scales,
+        "scales": log_scales.exp(),
+        "opacities": torch.sigmoid(upload([p.opacity_logits for p in parts])),
+        "sh": upload([np.pad(p.sh, ((0, 0), (0, k - p.sh.shape[1]), (0, 0))) for p in parts]),
+        "sh_degree": int(round(k ** 0.5)) - 1,
+        "labels": upload(label_index, torch.int64),
+    })
+    return _SCENE
 
 
 def render_gsplat(parts, label_index, n_labels, requested_index, K, T_cam_world, width, height, background,
@@ -38,55 +56,48 @@ def render_gsplat(parts, label_index, n_labels, requested_index, K, T_cam_world,
     """Render on CUDA with gsplat.
 
     parts: SplatClouds; label_index: per part [N_i] int32 dense label index (0..n_labels-1);
-    requested_index [R] dense indices (-1: label absent). Returns numpy (rgb [H,W,3] with background,
-    depth_sum [H,W], alpha [H,W], label_dense [H,W] int32 (-1 where none), weights [R,H,W]).
+    requested_index [R] dense indices (-1: label absent). Returns numpy float32 (rgb [H,W,3] with background,
+    depth_sum [H,W] (sum of w z), alpha [H,W]), label_dense [H,W] int32 (-1 where none), weights [R,H,W] float32.
     """
     from gsplat import rasterization, spherical_harmonics
 
-    device = torch.device("cuda")
-    R = T_cam_world[:3, :3]
-    campos = torch.tensor(-R.T @ T_cam_world[:3, 3], dtype=torch.float32, device=device)
-    means, quats, scales, opacities, features = [], [], [], [], []
-    for part, idx in zip(parts, label_index):
-        if len(part) == 0:
-            continue
-        g = _on_gpu(part, device)
-        rgb = spherical_harmonics(part.sh_degree, g["means"] - campos, g["sh"])
-        rgb = torch.clamp_min(rgb + 0.5, 0.0)
-        onehot = torch.nn.functional.one_hot(torch.from_numpy(idx.astype(np.int64)).to(device), n_labels)
-        means.append(g["means"])
-        quats.append(g["quats"])
-        scales.append(g["scales"])
-        opacities.append(g["opacities"])
-        features.append(torch.cat([rgb, onehot.to(torch.float32)], dim=1))
-    if not means:
-        blank = np.zeros((height, width))
+    parts_kept = [(p, idx) for p, idx in zip(parts, label_index) if len(p)]
+    if not parts_kept:
+        blank = np.zeros((height, width), np.float32)
         return (np.broadcast_to(background, (height, width, 3)).astype(np.float32), blank, blank,
                 np.full((height, width), -1, np.int32), np.zeros((len(requested_index), height, width), np.float32))
-    K_gsplat = np.array(K, dtype=np.float64)
-    K_gsplat[0, 2] += 0.5
-    K_gsplat[1, 2] += 0.5
+    device = torch.device("cuda")
+    g = _scene_on_gpu([p for p, _ in parts_kept], [idx for _, idx in parts_kept], device)
+    T = torch.tensor(T_cam_world, dtype=torch.float32, device=device)
+    K_gsplat = torch.tensor(K, dtype=torch.float32, device=device)
+    K_gsplat[:2, 2] += 0.5
     with torch.no_grad():
+        campos = -T[:3, :3].T @ T[:3, 3]
+        rgb = torch.clamp_min(spherical_harmonics(g["sh_degree"], g["means"] - campos, g["sh"]) + 0.5, 0.0)
+        onehot = torch.nn.functional.one_hot(g["labels"], n_labels).to(torch.float32)
+        # in float64: the planes of needle-like splats lose all their digits to float32's cancellation
+        planes = depth_planes(g["means"].double(), g["quats"].double(), g["log_scales"].double(),
+                              torch.tensor(K, dtype=torch.float64, device=device),
+                              torch.tensor(T_cam_world, dtype=torch.float64, device=device), width, height).float()
         colors, alphas, _ = rasterization(
-            torch.cat(means), torch.cat(quats), torch.cat(scales), torch.cat(opacities), torch.cat(features),
-            viewmats=torch.tensor(T_cam_world, dtype=torch.float32, device=device)[None],
-            Ks=torch.tensor(K_gsplat, dtype=torch.float32, device=device)[None],
-            width=width, height=height, near_plane=near, far_plane=far, eps2d=eps2d,
-            sh_degree=None, packed=False, render_mode="RGB+D", rasterize_mode="classic")
+            g["means"], g["quats"], g["scales"], g["opacities"], torch.cat([rgb, onehot, planes], dim=1),
+            viewmats=T[None], Ks=K_gsplat[None], width=width, height=height, near_plane=near, far_plane=far,
+            eps2d=eps2d, sh_degree=None, packed=False, render_mode="RGB", rasterize_mode="classic")
         out = colors[0]
         alpha = alphas[0, ..., 0]
-        bg = torch.tensor(background, dtype=torch.float32, device=device)
-        rgb = out[..., :3] + (1.0 - alpha)[..., None] * bg
         weights = out[..., 3:3 + n_labels]
         best_w, best = weights.max(dim=-1)
-        label = torch.where(best_w > 0, best, torch.full_like(best, -1)).to(torch.int32)
-        req = torch.tensor([max(i, 0) for i in requested_index], dtype=torch.long, device=device)
-        present = torch.tensor([i >= 0 for i in requested_index], dtype=torch.float32, device=device)
-        req_w = weights[..., req].permute(2, 0, 1) * present[:, None, None] if len(requested_index) else \
-            torch.zeros((0, height, width), device=device)
-        depth_sum = out[..., 3 + n_labels]
-    return (rgb.cpu().numpy(), depth_sum.double().cpu().numpy(), alpha.double().cpu().numpy(),
-            label.cpu().numpy(), req_w.cpu().numpy().astype(np.float32))
+        label = torch.where(best_w > 0, best, torch.full_like(best, -1)).to(torch.float32)
+        A, B, C = out[..., 3 + n_labels:].unbind(-1)
+        v, u = torch.meshgrid(torch.arange(height, device=device, dtype=torch.float32),
+                              torch.arange(width, device=device, dtype=torch.float32), indexing="ij")
+        bg = torch.tensor(background, dtype=torch.float32, device=device)
+        req = [i for i in requested_index if i >= 0]
+        images = torch.cat([out[..., :3] + (1.0 - alpha)[..., None] * bg, (A + B * u + C * v)[..., None],
+                            alpha[..., None], label[..., None], weights[..., req]], dim=-1).cpu().numpy()
+    req_w = np.zeros((len(requested_index), height, width), np.float32)
+    req_w[[j for j, i in enumerate(requested_index) if i >= 0]] = np.moveaxis(images[..., 6:], -1, 0)
+    return images[..., :3], images[..., 3], images[..., 4], images[..., 5].astype(np.int32), req_w
 
 
 def smoke_test() -> None:

@@ -36,7 +36,7 @@ from torch.utils.checkpoint import checkpoint
 
 # the forward math's constants are the numba renderer's (alpha threshold and clamp, early termination,
 # pixel-box extent, frustum clamp, near plane, low-pass)
-from pegasus_gen.render.cpu import ALPHA_MAX, ALPHA_THRESHOLD, EXTEND_MAX, T_MIN, frustum_limits
+from pegasus_gen.render.cpu import ALPHA_MAX, ALPHA_THRESHOLD, EXTEND_MAX, GRAD_EPS, T_MIN, frustum_limits
 from pegasus_gen.render.renderer import EPS2D, NEAR_PLANE
 from pegasus_gen.splats import sh as shlib
 
@@ -133,6 +133,53 @@ def _check_inputs(means, quats_wxyz, log_scales, opacity_logits, sh):
 
 
 # ------------------------------------------------------------------------------ torch backend
+def _camera_factors(means, quats_wxyz, log_scales, K, T_cam_world, width, height):
+    """The EWA projection of splats [N] for one camera (K [3, 3] px, T_cam_world [4, 4]).
+
+    Returns (z [N] camera-frame depth of the centres (m), RM [N, 3, 3] camera-frame covariance factor (covariance
+    RM RM^T, m), U [N, 2, 3] image-plane factor (2D covariance U U^T, px^2, without eps2d), means2d [N, 2]
+    projected centres (OpenCV px)); rows of splats with z <= 0 are finite but meaningless. The Jacobian is taken
+    at the direction clamped to the frustum widened by 30 % (gsplat's limits).
+    """
+    R = T_cam_world[:3, :3]
+    t = T_cam_world[:3, 3]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    x, y, z = (means @ R.T + t).unbind(-1)
+    zs = torch.where(z > 0, z, torch.ones_like(z))
+    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
+                                                                float(cy))
+    tx = zs * (x / zs).clamp(-lim_x_neg, lim_x_pos)
+    ty = zs * (y / zs).clamp(-lim_y_neg, lim_y_pos)
+    rz = 1.0 / zs
+    zero = torch.zeros_like(zs)
+    J = torch.stack([fx * rz, zero, -fx * tx * rz * rz,
+                     zero, fy * rz, -fy * ty * rz * rz], dim=-1).reshape(-1, 2, 3)
+    RM = R @ (quat_to_rotmat(quats_wxyz) * torch.exp(log_scales)[:, None, :])  # world covariance = M M^T
+    means2d = torch.stack([fx * x * rz + cx, fy * y * rz + cy], dim=-1)
+    return z, RM, J @ RM, means2d
+
+
+def depth_planes(means, quats_wxyz, log_scales, K, T_cam_world, width: int, height: int) -> torch.Tensor:
+    """Per splat the plane (A, B, C) [N, 3] of its depth over the image: on pixel (u, v) (OpenCV px) the
+    splat's depth is A + B u + C v (m), the point of highest density on that pixel's ray in the affine camera
+    model of the EWA projection, the depth rule of :func:`pegasus_gen.render.cpu.project` (its ``depth_grad``)
+    without its clamp at EXTEND_MAX standard deviations. Blended with the splats' weights, the planes give a
+    pixel's depth sum as sum(w A) + u sum(w B) + v sum(w C): how a rasteriser that blends feature channels
+    linearly (gsplat) renders the CPU renderer's depth. Rows of splats behind the camera are finite but
+    meaningless.
+    """
+    z, RM, U, means2d = _camera_factors(means, quats_wxyz, log_scales, K, T_cam_world, width, height)
+    cov = U @ U.transpose(1, 2)
+    a = cov[:, 0, 0] + GRAD_EPS
+    b = cov[:, 0, 1]
+    c = cov[:, 1, 1] + GRAD_EPS
+    cov_uz = (U * RM[:, 2, None, :]).sum(-1)  # [N, 2] covariance of (u, v) with z
+    det = a * c - b * b
+    dz_du = (c * cov_uz[:, 0] - b * cov_uz[:, 1]) / det
+    dz_dv = (a * cov_uz[:, 1] - b * cov_uz[:, 0]) / det
+    return torch.stack([z - dz_du * means2d[:, 0] - dz_dv * means2d[:, 1], dz_du, dz_dv], dim=-1)
+
+
 def project(means, quats_wxyz, log_scales, opacity_logits, sh, K, T_cam_world, width, height,
             sh_degree=None, near=NEAR_PLANE, far=1e10, eps2d=EPS2D) -> dict:
     """Per-splat projection (differentiable). Inputs as :func:`rasterize_torch`.
@@ -145,22 +192,8 @@ def project(means, quats_wxyz, log_scales, opacity_logits, sh, K, T_cam_world, w
     """
     R = T_cam_world[:3, :3]
     t = T_cam_world[:3, 3]
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    p = means @ R.T + t
-    x, y, z = p.unbind(-1)
+    z, _, U, means2d = _camera_factors(means, quats_wxyz, log_scales, K, T_cam_world, width, height)
     valid = (z > near) & (z < far)
-    zs = torch.where(valid, z, torch.ones_like(z))  # keeps culled rows finite
-    # clamp the direction used in the Jacobian to the frustum widened by 30% (gsplat's limits)
-    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
-                                                                float(cy))
-    tx = zs * (x / zs).clamp(-lim_x_neg, lim_x_pos)
-    ty = zs * (y / zs).clamp(-lim_y_neg, lim_y_pos)
-    rz = 1.0 / zs
-    zero = torch.zeros_like(zs)
-    J = torch.stack([fx * rz, zero, -fx * tx * rz * rz,
-                     zero, fy * rz, -fy * ty * rz * rz], dim=-1).reshape(-1, 2, 3)
-    M = quat_to_rotmat(quats_wxyz) * torch.exp(log_scales)[:, None, :]  # world covariance = M M^T
-    U = J @ (R @ M)  # [N, 2, 3]; 2D covariance = U U^T + eps2d I
     cov = U @ U.transpose(1, 2)
     a = cov[:, 0, 0] + eps2d
     b = cov[:, 0, 1]
@@ -169,7 +202,6 @@ def project(means, quats_wxyz, log_scales, opacity_logits, sh, K, T_cam_world, w
     valid = valid & (det > 0)
     det_s = torch.where(valid, det, torch.ones_like(det))
     conic = torch.stack([c / det_s, -b / det_s, a / det_s], dim=-1)
-    means2d = torch.stack([fx * x * rz + cx, fy * y * rz + cy], dim=-1)
     opacity = torch.sigmoid(opacity_logits)
     valid = valid & (opacity >= ALPHA_THRESHOLD)
     # colour along camera centre -> splat (world frame)

@@ -151,14 +151,27 @@ def render(scene: SplatCloud | Sequence[SplatCloud], K: np.ndarray, T_cam_world:
 
 def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, height, background, near, far):
     """Numba backend; returns (rgb, depth_sum, alpha, label_dense, weights) like the CUDA backend."""
+    proj = project_cpu(parts, K, T, width, height, near, far)
+    lab = np.concatenate(label_index) if label_index else np.zeros(0, np.int32)
+    rgb_img, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
+        proj["offsets"], proj["ids"], proj["mean2d"], proj["conic"], proj["depth"], proj["depth_grad"], proj["box"],
+        proj["rgb"], proj["log_opacity"], lab, n_labels, np.asarray(requested_index, dtype=np.int64), width, height,
+        background)
+    return rgb_img, depth_sum, 1.0 - trans, label_dense, weights
+
+
+def project_cpu(parts, K, T, width, height, near=NEAR_PLANE, far=1e10) -> dict:
+    """The numba projection of the splats of ``parts`` (concatenated in order, N in all) for one camera, binned
+    to tiles: the inputs of :func:`pegasus_gen.render.cpu.rasterize` by name (``project``'s outputs with N
+    rows, and ``offsets``, ``ids`` of the tile lists)."""
     R = np.ascontiguousarray(T[:3, :3])
     t = np.ascontiguousarray(T[:3, 3])
     cam_center = -R.T @ t
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     n = sum(len(p) for p in parts)
-    valid = np.empty(n, dtype=bool)
-    mean2d, conic, depth, depth_grad = np.empty((n, 2)), np.empty((n, 3)), np.empty(n), np.empty((n, 3))
-    box, rgb, log_opacity = np.empty((n, 4), np.int32), np.empty((n, 3)), np.empty(n)
+    out = {"valid": np.empty(n, dtype=bool), "mean2d": np.empty((n, 2)), "conic": np.empty((n, 3)),
+           "depth": np.empty(n), "depth_grad": np.empty((n, 3)), "box": np.empty((n, 4), np.int32),
+           "rgb": np.empty((n, 3)), "log_opacity": np.empty(n)}
     start = 0
     for part in parts:
         end = start + len(part)
@@ -166,19 +179,14 @@ def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, heig
             rasterizer_cpu.project(
                 part.means, part.quats_wxyz, part.log_scales, part.opacity_logits, part.sh,
                 R, t, cam_center, fx, fy, cx, cy, width, height, near, far, EPS2D,
-                valid[start:end], mean2d[start:end], conic[start:end], depth[start:end], depth_grad[start:end],
-                box[start:end],
-                rgb[start:end], log_opacity[start:end])
+                *(out[k][start:end] for k in ("valid", "mean2d", "conic", "depth", "depth_grad", "box", "rgb",
+                                              "log_opacity")))
         start = end
-    lab = np.concatenate(label_index) if label_index else np.zeros(0, np.int32)
-    order = rasterizer_cpu.sort_by_depth(depth, np.flatnonzero(valid))
+    order = rasterizer_cpu.sort_by_depth(out["depth"], np.flatnonzero(out["valid"]))
     tiles_x = (width + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
     tiles_y = (height + rasterizer_cpu.TILE - 1) // rasterizer_cpu.TILE
-    offsets, ids = rasterizer_cpu.bin_to_tiles(order, box, tiles_x, tiles_x * tiles_y)
-    rgb_img, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
-        offsets, ids, mean2d, conic, depth, depth_grad, box, rgb, log_opacity, lab, n_labels,
-        np.asarray(requested_index, dtype=np.int64), width, height, background)
-    return rgb_img, depth_sum, 1.0 - trans, label_dense, weights
+    out["offsets"], out["ids"] = rasterizer_cpu.bin_to_tiles(order, out["box"], tiles_x, tiles_x * tiles_y)
+    return out
 
 
 def _dense_labels(labels_per_part: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
