@@ -1,5 +1,5 @@
-"""DOPE speed: training images/s (full and light variants, CPU and CUDA when present) and ONNX inference
-latency at 640x480 on CPU (onnxruntime).
+"""DOPE speed: training images/s (full and light variants, CPU and CUDA when present) and inference latency at
+640x480: ONNX on the CPU (onnxruntime) and, with CUDA, torch on the GPU in half precision (``DopeModel``'s path).
 
 Usage: python benchmarks/dope.py [--variants full light] [--devices cpu cuda] [--steps 5] [--runs 10]
 Training is timed on random 3x{crop} images with random targets (the data pipeline is not included: it
@@ -69,6 +69,21 @@ def onnx_latency_ms(variant: str, runs: int) -> float:
     return 1000 * float(np.median(times))
 
 
+def torch_latency_ms(variant: str, device: str, runs: int) -> float:
+    """Median ms of one 640x480 image through the network on torch (``DopeModel``'s path: half precision on
+    CUDA), the result copied to the host."""
+    model = DopeNetwork(ModelConfig.of(variant)).to(device).eval()
+    image = torch.rand(1, 3, 480, 640, device=device)
+    times = []
+    for _ in range(runs + 1):
+        t0 = time.perf_counter()
+        with torch.inference_mode(), torch.autocast("cuda", dtype=torch.float16, enabled=device == "cuda"):
+            beliefs, affinities = model(image)[-1]
+        beliefs.float().cpu(), affinities.float().cpu()
+        times.append(time.perf_counter() - t0)
+    return 1000 * float(np.median(times[1:]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--variants", nargs="+", default=["full", "light"], choices=list(CROPS))
@@ -88,6 +103,9 @@ def main() -> None:
             print(f"train {variant:5s} {CROPS[variant]} px, batch 8, {device}: {rate:7.2f} images/s")
     for variant in args.variants:
         print(f"onnxruntime CPU {variant:5s} 640x480: {onnx_latency_ms(variant, args.runs):7.1f} ms/image")
+    if "cuda" in args.devices and torch.cuda.is_available():
+        for variant in args.variants:
+            print(f"torch CUDA      {variant:5s} 640x480: {torch_latency_ms(variant, 'cuda', args.runs):7.1f} ms/image")
 
 
 if __name__ == "__main__":

@@ -180,7 +180,8 @@ class DopeModel:
         if self.model is None:
             beliefs, affinities = self.session.run(["beliefs", "affinities"], {"image": x})
         else:
-            with torch.no_grad():
+            on_cuda = self.device.type == "cuda"  # half precision there: the tensor cores' speed
+            with torch.inference_mode(), torch.autocast("cuda", dtype=torch.float16, enabled=on_cuda):
                 outputs = self.model(torch.from_numpy(x).to(self.device))[-1]
             beliefs, affinities = (t.float().cpu().numpy() for t in outputs)
         return beliefs[0], affinities[0], (nw / w, nh / h)

@@ -221,6 +221,14 @@ def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
     return state
 
 
+def loader_workers(cfg: TrainConfig, device: torch.device) -> int:
+    """Data loading processes: ``cfg.loader_workers``, or for -1 two on the CPU (the network needs the cores) and
+    on CUDA one per CPU core less one, at most 8 (a GPU trains faster than two processes crop and augment)."""
+    if cfg.loader_workers >= 0:
+        return cfg.loader_workers
+    return min(8, max(2, (os.cpu_count() or 2) - 1)) if device.type == "cuda" else 2
+
+
 def train(cfg: TrainConfig, resume: bool = False) -> Path:
     """Train as ``cfg`` says (see the module docstring); returns the output folder, which is this run's alone
     while it trains (``FolderLock``, taken by rank 0)."""
@@ -294,7 +302,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
-    loader_args = dict(batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.loader_workers,
+    loader_args = dict(batch_size=cfg.batch_size, sampler=sampler, num_workers=loader_workers(cfg, device),
                        pin_memory=device.type == "cuda")
     still = DopeDataset([next(s for s in samples if s.keypoints)], cfg.size, Augment(enabled=False),
                         focal_px=cfg.focal_px, sigma_px=cfg.sigma_px)

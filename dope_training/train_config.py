@@ -51,7 +51,8 @@ class TrainConfig(BaseModel):
                                             "nominal-scale crops around the instances only)")
     device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto: CUDA when torch sees a GPU")
     amp: bool = Field(True, description="mixed precision (float16) on CUDA")
-    loader_workers: int = Field(2, ge=0, description="data loading processes per training process")
+    loader_workers: int = Field(-1, ge=-1, description="data loading processes per training process (-1: 2 on the "
+                                                        "CPU; on CUDA one per CPU core less one, at most 8)")
     seed: int = Field(0, description="random seed (weights, image order, augmentation)")
     vgg19: Optional[str] = Field(None, description="ImageNet VGG19 weights (torchvision vgg19-*.pth) for the "
                                                    "full variant; default: the torch hub cache if present")

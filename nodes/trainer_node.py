@@ -20,7 +20,7 @@ from nodes.ros import Node, declare, latched, msgs, run_node
 
 PARAMETERS = (
     ("data", ""), ("object", ""), ("out", "runs/dope"), ("variant", "light"), ("epochs", 10),
-    ("batch_size", 8), ("size", 0), ("device", "auto"), ("loader_workers", 2), ("options", ""))
+    ("batch_size", 8), ("size", 0), ("device", "auto"), ("loader_workers", -1), ("options", ""))
 
 
 class TrainerNode(Node):

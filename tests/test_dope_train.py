@@ -27,7 +27,7 @@ from dope_training.evaluate import (
 )
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, on_centroid_ray
-from dope_training.train import ShardSampler, TrainConfig, train
+from dope_training.train import ShardSampler, TrainConfig, loader_workers, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
@@ -276,3 +276,18 @@ def test_a_centroid_pnp_cannot_solve_is_kept_when_depth_confirms_it(dope_dataset
     for inst in [i for i in frame.instances if i.visib_fract > 0.5]:  # each clearly visible cup within 2 cm
         assert min(adds_error(points, p.refined, inst.T) for p in poses) < 0.02
     assert len(poses) <= len([i for i in frame.instances if i.visib_fract > 0.0])
+
+
+def test_loader_workers_default_to_the_cores_on_cuda_and_two_on_the_cpu(monkeypatch):
+    import torch
+
+    cfg = TrainConfig(data=["x"], object="o", out="r")
+    assert cfg.loader_workers == -1
+    for cores, on_cuda in ((1, 2), (2, 2), (4, 3), (16, 8), (64, 8)):
+        monkeypatch.setattr(os, "cpu_count", lambda cores=cores: cores)
+        assert loader_workers(cfg, torch.device("cpu")) == 2
+        assert loader_workers(cfg, torch.device("cuda")) == on_cuda
+    explicit = TrainConfig(data=["x"], object="o", out="r", loader_workers=5)
+    assert loader_workers(explicit, torch.device("cuda")) == loader_workers(explicit, torch.device("cpu")) == 5
+    with pytest.raises(ValueError):
+        TrainConfig(data=["x"], object="o", out="r", loader_workers=-2)
