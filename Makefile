@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # compilers with which nodes.ros_interfaces builds the ROS 2 message packages that have no wheel.
 APT_PACKAGES := libusb-1.0-0 libgomp1 cmake g++
 
-.PHONY: test test-all lint demo bench setup system-deps clean
+.PHONY: test test-all lint demo bench gpu-check setup system-deps clean
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
@@ -33,6 +33,11 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/robot.py
 	$(BIN)/python benchmarks/training.py --work out/bench-training --tag demo-recipe --recipe demo
 	$(BIN)/python benchmarks/loop.py
+
+# on a machine with a CUDA GPU: the cuda extra (gsplat), every gpu-marked test and the GPU figures in one table
+gpu-check: $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[test,ros,cuda]'
+	$(BIN)/python benchmarks/gpu_check.py
 
 setup: $(STAMP)
 
