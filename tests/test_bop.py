@@ -11,6 +11,7 @@ from plyfile import PlyData
 
 from pegasus_gen.assets.library import ContinuousSymmetry
 from pegasus_gen.dataset.bop import (
+    CanvasWindow,
     camera_entry,
     depth_to_png_values,
     gt_info_entry,
@@ -120,14 +121,37 @@ def test_gt_info_counts_outside_pixels_and_occlusion():
     scene = np.full((H, W), 2.0)
     scene[10:20, 0:15] = 0.5  # an occluder in front of its top half
     scene[25:30, 10:15] = 0.0  # no scene depth here: counts as visible, not valid
-    info, mask, visible = gt_info_entry(canvas, scene, K)
+    info, mask, visible = gt_info_entry(CanvasWindow(canvas), scene, K)
     assert info["px_count_all"] == 400 and mask.sum() == 300
     assert info["bbox_obj"] == [-5, 10, 20, 20]
     assert info["px_count_valid"] == 300 - 25
     assert info["px_count_visib"] == 300 - 150 and np.isclose(info["visib_fract"], 150 / 400)
     assert info["bbox_visib"] == [0, 20, 15, 10]
-    occluded = gt_info_entry(canvas, np.full((H, W), 0.5), K)[0]
+    occluded = gt_info_entry(CanvasWindow(canvas), np.full((H, W), 0.5), K)[0]
     assert occluded["px_count_visib"] == 0 and occluded["bbox_visib"] == [-1, -1, -1, -1]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_gt_info_of_a_window_equals_that_of_the_whole_canvas(seed):
+    """The object's window anywhere on the 3x canvas (inside the image, across its border, wholly outside it)
+    gives what the whole canvas gives."""
+    rng = np.random.default_rng(seed)
+    H, W = 30, 40
+    K = np.array([[40.0, 0, 19.5], [0, 41.0, 14.5], [0, 0, 1]])
+    h, w = rng.integers(3, 40, 2)
+    y0, x0 = rng.integers(0, 3 * H - h), rng.integers(0, 3 * W - w)
+    if seed == 0:
+        y0, x0 = H + 5, W - w // 2  # across the image's left border
+    window = np.where(rng.random((h, w)) < 0.7, rng.uniform(0.4, 0.6, (h, w)), 0.0)
+    canvas = np.zeros((3 * H, 3 * W))
+    canvas[y0:y0 + h, x0:x0 + w] = window
+    scene = np.where(rng.random((H, W)) < 0.1, 0.0, rng.uniform(0.3, 0.7, (H, W)))
+    whole = gt_info_entry(CanvasWindow(canvas), scene, K)
+    part = gt_info_entry(CanvasWindow(window, int(x0), int(y0)), scene, K)
+    assert whole[0] == part[0]
+    np.testing.assert_array_equal(whole[1], part[1])
+    np.testing.assert_array_equal(whole[2], part[2])
+    np.testing.assert_array_equal(CanvasWindow(window, int(x0), int(y0)).canvas(W, H), canvas)
 
 
 def test_bop19_results_file_has_the_toolkits_layout_and_reads_back(tmp_path):

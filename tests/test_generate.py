@@ -192,4 +192,4 @@ def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
     full = model.depth(K_canvas, T_cam_obj, 3 * W, 3 * H)
     window = object_depth_canvas(model, asset.surface.vertices, T_cam_obj, K_canvas, W, H)
     assert (full > 0).sum() > 200
-    np.testing.assert_allclose(window, full, atol=1e-6)
+    np.testing.assert_allclose(window.canvas(W, H), full, atol=1e-6)

@@ -13,6 +13,7 @@ from pegasus_gen.render.shadows import (
     contact_shadows,
     darken,
     hemisphere_directions,
+    occluder,
     occlusion,
 )
 from pegasus_gen.splats import procedural
@@ -121,3 +122,22 @@ def test_a_shaded_scene_renders_darker_only_near_the_objects(rng):
     darker = (plain.rgb - dark.rgb).mean(-1) > 0.02
     assert 0.002 < darker.mean() < 0.3  # some pixels, not the whole image
     np.testing.assert_array_equal(dark.depth, plain.depth)  # geometry untouched
+
+
+def test_a_fine_surface_shades_through_a_coarse_occluder_as_it_would_itself():
+    """A fine model (a 20,480-triangle sphere resting on the floor) is clustered to a few thousand triangles for
+    the shadows; the floor's occlusion under it stays within the shadows' own sampling noise (16 rays)."""
+    fine = trimesh.creation.icosphere(subdivisions=5, radius=0.05).apply_translation([0, 0, 0.051])
+    coarse = occluder(fine)
+    assert len(coarse.faces) < len(fine.faces) / 2 and occluder(fine) is coarse  # made once
+    small = box_at([0, 0, 0.05])
+    assert occluder(small) is small
+    u, v = np.meshgrid(np.linspace(-0.12, 0.12, 60), np.linspace(-0.12, 0.12, 60))
+    points = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 0.001)])
+    params = shadow_params()
+    a = occlusion(points, [fine], params, np.random.default_rng(0))
+    b = occlusion(points, [coarse], params, np.random.default_rng(0))
+    assert a.max() > 0.5 and a.mean() > 0.1  # the sphere shades the floor under it
+    # measured: mean |a - b| 0.0001 (one ray of 16 in 0.2 % of the points); a wrong occluder (the box of the
+    # sphere's bounds) differs by 0.13 (mean occlusion 0.30 against 0.17)
+    assert np.abs(a - b).mean() < 0.01 and abs(a.mean() - b.mean()) < 0.01

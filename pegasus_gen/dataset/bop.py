@@ -6,6 +6,7 @@ Inside the code poses are metres; every function here converts to and from BOP's
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,33 +46,70 @@ def _bbox(mask: np.ndarray, dx: int = 0, dy: int = 0) -> list[int]:
     return [x0 - dx, y0 - dy, int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1]
 
 
-def ray_lengths(K: np.ndarray, width: int, height: int) -> np.ndarray:
-    """[H, W] factor turning z-depth into distance along each pixel's ray: ||K^-1 [u, v, 1]||."""
+@functools.lru_cache(maxsize=8)
+def _ray_lengths(K_entries: tuple, width: int, height: int) -> np.ndarray:
     u, v = np.meshgrid(np.arange(width), np.arange(height))
-    x = (u - K[0, 2]) / K[0, 0]
-    y = (v - K[1, 2]) / K[1, 1]
-    return np.sqrt(x * x + y * y + 1.0)
+    x = (u - K_entries[2]) / K_entries[0]
+    y = (v - K_entries[5]) / K_entries[4]
+    lengths = np.sqrt(x * x + y * y + 1.0)
+    lengths.flags.writeable = False
+    return lengths
 
 
-def gt_info_entry(object_depth_canvas: np.ndarray, scene_depth: np.ndarray, K: np.ndarray,
+def ray_lengths(K: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[H, W] factor turning z-depth into distance along each pixel's ray: ||K^-1 [u, v, 1]|| (read-only, computed
+    once per camera)."""
+    return _ray_lengths(tuple(float(v) for v in np.asarray(K).ravel()), int(width), int(height))
+
+
+@dataclass
+class CanvasWindow:
+    """An object's z-depth on calc_gt_info's canvas (three times the image, principal point shifted by (W, H)),
+    held as the window around the object: depth [h, w] (m, 0 where the object is absent) at canvas pixels
+    x0.., y0..; the canvas is 0 outside it."""
+
+    depth: np.ndarray
+    x0: int = 0
+    y0: int = 0
+
+    def canvas(self, width: int, height: int) -> np.ndarray:
+        """The whole [3H, 3W] canvas of an image of ``width`` x ``height`` px."""
+        canvas = np.zeros((3 * height, 3 * width), self.depth.dtype)
+        h, w = self.depth.shape
+        canvas[self.y0:self.y0 + h, self.x0:self.x0 + w] = self.depth
+        return canvas
+
+
+def gt_info_entry(window: CanvasWindow, scene_depth: np.ndarray, K: np.ndarray,
                   delta: float = 0.015) -> tuple[dict, np.ndarray, np.ndarray]:
     """(scene_gt_info entry, full mask [H, W], visible mask [H, W]) as bop_toolkit's calc_gt_info.
 
-    object_depth_canvas [3H, 3W]: z-depth (m) of the object rendered alone on a canvas three times the
-    image with the principal point shifted by (W, H), 0 where it is absent; scene_depth [H, W] (m).
+    window: the object rendered alone on the 3x canvas (:class:`CanvasWindow`); scene_depth [H, W] (m).
     A pixel is visible where the object is and its distance along the ray exceeds the scene's by at
     most ``delta`` (m), or the scene has no depth there.
     """
     height, width = scene_depth.shape
-    full_canvas = object_depth_canvas > 0
-    object_depth = object_depth_canvas[height:2 * height, width:2 * width]
-    mask = object_depth > 0
-    rays = ray_lengths(K, width, height)
-    visible = mask & ((object_depth * rays - scene_depth * rays <= delta) | (scene_depth == 0))
-    px_all = int(full_canvas.sum())
+    present = window.depth > 0
+    px_all = int(present.sum())
+    mask = np.zeros((height, width), bool)
+    visible = np.zeros((height, width), bool)
+    valid = 0
+    h, w = window.depth.shape
+    # the image's part of the window, in image pixels [iy0:iy1, ix0:ix1]
+    ix0, iy0 = max(window.x0 - width, 0), max(window.y0 - height, 0)
+    ix1, iy1 = min(window.x0 + w - width, width), min(window.y0 + h - height, height)
+    if ix0 < ix1 and iy0 < iy1:
+        object_depth = window.depth[iy0 + height - window.y0:iy1 + height - window.y0,
+                                    ix0 + width - window.x0:ix1 + width - window.x0]
+        scene = scene_depth[iy0:iy1, ix0:ix1]
+        rays = ray_lengths(K, width, height)[iy0:iy1, ix0:ix1]
+        inside = object_depth > 0
+        mask[iy0:iy1, ix0:ix1] = inside
+        visible[iy0:iy1, ix0:ix1] = inside & ((object_depth * rays - scene * rays <= delta) | (scene == 0))
+        valid = int((inside & (scene > 0)).sum())
     px_visib = int(visible.sum())
-    info = {"bbox_obj": _bbox(full_canvas, width, height), "bbox_visib": _bbox(visible),
-            "px_count_all": px_all, "px_count_valid": int((mask & (scene_depth > 0)).sum()),
+    info = {"bbox_obj": _bbox(present, width - window.x0, height - window.y0), "bbox_visib": _bbox(visible),
+            "px_count_all": px_all, "px_count_valid": valid,
             "px_count_visib": px_visib, "visib_fract": px_visib / px_all if px_all else 0.0}
     return info, mask, visible
 

@@ -33,7 +33,7 @@ import os
 import shutil
 import signal
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -66,7 +66,7 @@ from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import check_image_memory, render
 from pegasus_gen.render.sensor import apply_sensor
-from pegasus_gen.render.shadows import contact_shadows
+from pegasus_gen.render.shadows import contact_shadows, occluder
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.colour import blend_colour, shade_lambert, transform_colour
 
@@ -88,11 +88,21 @@ def camera_matrix(cfg: GenerateConfig) -> np.ndarray:
 class Assets:
     environments: list[Asset]
     per_spec: list[Asset]  # the object asset of each entry of cfg.objects, in order
+    _raycasters: dict = field(default_factory=dict, repr=False)  # obj_id -> MeshRaycaster, built in this process
 
     @property
     def objects(self) -> dict[int, Asset]:
         """The distinct object assets by obj_id."""
         return {a.manifest.obj_id: a for a in self.per_spec}
+
+    def raycaster(self, obj_id: int) -> MeshRaycaster:
+        """The surface model of object ``obj_id`` prepared for ray casting, once per process (not pickled)."""
+        if obj_id not in self._raycasters:
+            self._raycasters[obj_id] = MeshRaycaster(self.objects[obj_id].surface)
+        return self._raycasters[obj_id]
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_raycasters": {}}
 
 
 def load_assets(cfg: GenerateConfig) -> Assets:
@@ -187,14 +197,14 @@ BLOCKING_MARGIN = 0.03  # m: the environment may come this close in front of an 
 
 
 def object_depth_canvas(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: np.ndarray, K_canvas: np.ndarray,
-                        width: int, height: int) -> np.ndarray:
-    """[3H, 3W] z-depth (m) of one placed object's model alone on the 3x canvas of calc_gt_info (0 where it
-    is absent): one ray through each pixel centre, as a rasteriser samples them.
+                        width: int, height: int) -> bop.CanvasWindow:
+    """The z-depth (m) of one placed object's model alone on the 3x canvas of calc_gt_info (0 where it is
+    absent): one ray through each pixel centre, as a rasteriser samples them, cast only in the window around the
+    projection of the model's vertices (the whole canvas when the model reaches behind the camera).
 
     ``model`` is the object's surface prepared for ray casting and ``vertices`` [V, 3] its vertices (m,
-    object frame); only the window around their projection is cast, the rest of the canvas is empty.
+    object frame).
     """
-    canvas = np.zeros((3 * height, 3 * width), np.float32)
     pts = vertices @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
     if (pts[:, 2] <= 0.01).any():  # partly behind the camera: cast the whole canvas
         x0, y0, x1, y1 = 0, 0, 3 * width, 3 * height
@@ -204,12 +214,11 @@ def object_depth_canvas(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: n
         x1 = min(int(np.ceil(uv[:, 0].max())) + 1, 3 * width)
         y1 = min(int(np.ceil(uv[:, 1].max())) + 1, 3 * height)
         if x0 >= x1 or y0 >= y1:
-            return canvas
+            return bop.CanvasWindow(np.zeros((0, 0), np.float32))
     K_window = K_canvas.copy()
     K_window[0, 2] -= x0
     K_window[1, 2] -= y0
-    canvas[y0:y1, x0:x1] = model.depth(K_window, T_cam_obj, x1 - x0, y1 - y0)
-    return canvas
+    return bop.CanvasWindow(model.depth(K_window, T_cam_obj, x1 - x0, y1 - y0).astype(np.float32), int(x0), int(y0))
 
 
 def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> list[np.ndarray]:
@@ -274,7 +283,7 @@ def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateCo
             placed = [shade_lambert(cloud, poses[i][:3, 3], *looks.light) for cloud, i in zip(placed, kept)]
     if not cfg.shadows.enabled:
         return environment, placed
-    meshes = [plan.objects[i].surface.copy().apply_transform(poses[i]) for i in kept]
+    meshes = [occluder(plan.objects[i].surface).copy().apply_transform(poses[i]) for i in kept]
     return contact_shadows(environment, placed, meshes, cfg.shadows.params(), rng)
 
 
@@ -327,7 +336,6 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     K_canvas[1, 2] += H
     for sub in ("rgb", "depth", "mask", "mask_visib"):
         (scene_dir / sub).mkdir(parents=True)
-    models = {objects[i].manifest.obj_id: MeshRaycaster(objects[i].surface) for i in labelled}
     scene_gt, scene_camera, scene_info = {}, {}, {}
     coco_images, coco_instances = [], []
     looks = scene_looks(cfg, scene_id, len(kept))
@@ -351,9 +359,9 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             for gt_idx, i in enumerate(labelled):
                 asset = objects[i]
                 T_cam_obj = T_cam_world @ poses[i]
-                canvas = object_depth_canvas(models[asset.manifest.obj_id], asset.surface.vertices, T_cam_obj,
-                                             K_canvas, W, H)
-                info, mask, visible = bop.gt_info_entry(canvas, out.depth, K, cfg.visib_delta)
+                window = object_depth_canvas(assets.raycaster(asset.manifest.obj_id), asset.surface.vertices,
+                                             T_cam_obj, K_canvas, W, H)
+                info, mask, visible = bop.gt_info_entry(window, out.depth, K, cfg.visib_delta)
                 name = f"{im_id:06d}_{gt_idx:06d}.png"
                 writer.image(scene_dir / "mask" / name, mask.astype(np.uint8) * 255)
                 writer.image(scene_dir / "mask_visib" / name, visible.astype(np.uint8) * 255)

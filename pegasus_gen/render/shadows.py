@@ -11,15 +11,23 @@ object's bounding sphere are not touched.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+import open3d as o3d
 import trimesh
 
 from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.colour import transform_colour
+
+# the shadows' occluders: an object's surface clustered to a grid of this many cells along its longest side
+# (shadows are soft: a finer occluder only costs ray-cast time)
+OCCLUDER_CELLS = 32
+OCCLUDER_MIN_TRIANGLES = 4000  # surfaces with fewer triangles are used as they are
+_OCCLUDERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True)
@@ -59,6 +67,23 @@ def cone_directions(axis: np.ndarray, half_angle_deg: float, count: int) -> np.n
     u /= np.linalg.norm(u)
     v = np.cross(axis, u)
     return (np.outer(cos_t, axis) + np.outer(sin_t * np.cos(phi), u) + np.outer(sin_t * np.sin(phi), v))
+
+
+def occluder(surface: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``surface`` as the shadows' occluder: its vertices clustered to a grid of OCCLUDER_CELLS cells along its
+    longest side (Open3D's vertex clustering, some thousand triangles), made once per surface object while it
+    lives; surfaces of fewer than OCCLUDER_MIN_TRIANGLES triangles as they are."""
+    if len(surface.faces) < OCCLUDER_MIN_TRIANGLES:
+        return surface
+    cached = _OCCLUDERS.get(surface)
+    if cached is None:
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(surface.vertices, np.float64)),
+                                         o3d.utility.Vector3iVector(np.asarray(surface.faces, np.int32)))
+        cell = float(np.ptp(np.asarray(surface.vertices), axis=0).max()) / OCCLUDER_CELLS
+        coarse = mesh.simplify_vertex_clustering(voxel_size=cell)
+        cached = _OCCLUDERS[surface] = trimesh.Trimesh(np.asarray(coarse.vertices), np.asarray(coarse.triangles),
+                                                       process=False)
+    return cached
 
 
 def _blocked_fraction(points: np.ndarray, directions: np.ndarray, scene: MeshRaycaster, max_t: float,
