@@ -196,6 +196,9 @@ class GenerateConfig(_Strict):
     appearance: AppearanceConfig = Field(default_factory=AppearanceConfig)
     distractors: DistractorConfig = Field(default_factory=DistractorConfig)
     trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig)
+    # share of the objects (not the distractors) spawned standing as their asset stands (z up, any turn about z,
+    # leaning at most 10 degrees) instead of in a uniformly random orientation; all of them then drop and settle
+    upright: float = Field(default=0.0, ge=0.0, le=1.0)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     image_format: Literal["jpg", "png"] = "jpg"
     jpg_quality: int = Field(default=95, ge=1, le=100)

@@ -57,7 +57,7 @@ from pegasus_gen.dataset.distractors import Distractor, make_distractor
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
 from pegasus_gen.dataset.models import cached_eval_model, symmetry_fields, write_model_ply
 from pegasus_gen.dataset.on_ray import build_on_ray, ray_session
-from pegasus_gen.dataset.physics import DropResult, drop_objects
+from pegasus_gen.dataset.physics import DropResult, drop_objects, upright_quat_xyzw
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
 from pegasus_gen.io.files import parse_yaml, write_atomic
@@ -72,7 +72,7 @@ from pegasus_gen.splats.colour import blend_colour, shade_lambert, transform_col
 
 # random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
 # switching shadows or randomisation on changes no object, pose or camera
-SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM, LIGHT_STREAM = 1, 2, 3, 4, 5
+SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM, LIGHT_STREAM, UPRIGHT_STREAM = 1, 2, 3, 4, 5, 6
 # config keys that may differ between a dataset and a run resuming it (they change no annotation)
 RESUMABLE_KEYS = ("output", "library", "device", "workers", "ray")
 MODELS_CACHE = ".cache/models_eval"  # in the asset library: evaluation models by surface content (dataset.models)
@@ -179,7 +179,10 @@ def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
     clutter_rng = np.random.default_rng([cfg.seed, scene_id, DISTRACTOR_STREAM])
     count = int(clutter_rng.integers(cfg.distractors.count[0], cfg.distractors.count[1] + 1))
     distractors = [make_distractor(cfg.distractors, clutter_rng, k) for k in range(count)]
-    drop = drop_objects(env, objects + distractors, rng, record_fps=cfg.fps if cfg.dynamic else None)
+    upright_rng = np.random.default_rng([cfg.seed, scene_id, UPRIGHT_STREAM])
+    orientations = [upright_quat_xyzw(upright_rng) if upright_rng.random() < cfg.upright else None for _ in objects]
+    drop = drop_objects(env, objects + distractors, rng, record_fps=cfg.fps if cfg.dynamic else None,
+                        orientations=orientations)
     return ScenePlan(env, objects + distractors, len(objects), drop, rng)
 
 

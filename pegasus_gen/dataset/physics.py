@@ -7,8 +7,10 @@ link). PyBullet reports a body's centre-of-mass frame; the URDF inertial origin 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from pegasus_gen.assets.library import Asset
 from pegasus_gen.dataset.distractors import Distractor
@@ -33,10 +35,23 @@ class PhysicsParams:
     fell_below: float = 0.05  # m under the support height: the object left the support
 
 
+UPRIGHT_TILT_DEG = 10.0  # an upright spawn leans at most this far from the asset's own z up
+
+
 def random_quat_xyzw(rng: np.random.Generator) -> np.ndarray:
     """A uniformly distributed unit quaternion [4] (x, y, z, w): a normalised 4D Gaussian."""
     q = rng.normal(size=4)
     return q / np.linalg.norm(q)
+
+
+def upright_quat_xyzw(rng: np.random.Generator, max_tilt_deg: float = UPRIGHT_TILT_DEG) -> np.ndarray:
+    """A rotation [4] (x, y, z, w) that keeps an asset standing as it was made (z up): a uniformly random turn
+    about z, then a tilt of at most ``max_tilt_deg`` (uniform in angle) about a random horizontal axis."""
+    yaw = rng.uniform(0.0, 2.0 * np.pi)
+    tilt = np.radians(rng.uniform(0.0, max_tilt_deg))
+    heading = rng.uniform(0.0, 2.0 * np.pi)
+    lean = Rotation.from_rotvec(tilt * np.array([np.cos(heading), np.sin(heading), 0.0]))
+    return (lean * Rotation.from_rotvec([0.0, 0.0, yaw])).as_quat()
 
 
 def _matrix(position, quat_xyzw) -> np.ndarray:
@@ -130,8 +145,9 @@ class World:
 
 
 def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.random.Generator,
-                params: PhysicsParams = PhysicsParams()) -> list[np.ndarray]:
-    """Non-overlapping T_world_obj above the environment's drop region, uniformly random orientations.
+                params: PhysicsParams = PhysicsParams(), orientations: Sequence | None = None) -> list[np.ndarray]:
+    """Non-overlapping T_world_obj above the environment's drop region: object k turned by ``orientations[k]``
+    (a quaternion [4] x, y, z, w) where given and not None, else by a uniformly random rotation.
 
     Objects that do not fit side by side are stacked in layers above each other.
     """
@@ -141,7 +157,7 @@ def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.r
     placed: list[tuple[np.ndarray, float]] = []
     poses = []
     layer_base = support + params.drop_clearance
-    for radius in radii:
+    for k, radius in enumerate(radii):
         for _attempt in range(200):
             xy = rng.uniform([region.x_min, region.y_min], [region.x_max, region.y_max])
             centre = np.r_[xy, layer_base + radius]
@@ -152,20 +168,23 @@ def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.r
             centre = np.r_[rng.uniform([region.x_min, region.y_min], [region.x_max, region.y_max]),
                            layer_base + radius]
         placed.append((centre, radius))
-        T = _matrix(centre, random_quat_xyzw(rng))
+        given = orientations[k] if orientations is not None else None
+        T = _matrix(centre, random_quat_xyzw(rng) if given is None else given)
         poses.append(T)
     return poses
 
 
 def drop_objects(environment: Asset, objects: list[Asset | Distractor], rng: np.random.Generator,
-                 params: PhysicsParams = PhysicsParams(), record_fps: float | None = None) -> DropResult:
-    """Drop ``objects`` onto ``environment`` and simulate until all rest (or ``max_time``).
+                 params: PhysicsParams = PhysicsParams(), record_fps: float | None = None,
+                 orientations: Sequence | None = None) -> DropResult:
+    """Drop ``objects`` onto ``environment`` (spawned turned by ``orientations``, see :func:`spawn_poses`) and
+    simulate until all rest (or ``max_time``).
 
     With ``record_fps`` the poses are recorded at that rate from the spawn on (a dynamic scene).
     Objects that end below the support (fell off) are removed and listed in ``removed``.
     """
     with World(environment, params) as world:
-        for i, (asset, T) in enumerate(zip(objects, spawn_poses(environment, objects, rng, params))):
+        for i, (asset, T) in enumerate(zip(objects, spawn_poses(environment, objects, rng, params, orientations))):
             world.add(i, asset, T)
         steps_per_frame = None if not record_fps else max(1, int(round(1.0 / (record_fps * params.time_step))))
         trajectory = []
