@@ -8,6 +8,7 @@ import time
 import cv2
 import numpy as np
 import pytest
+import trimesh
 from plyfile import PlyData
 
 from pegasus_gen.dataset.config import load_config
@@ -190,6 +191,7 @@ def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
     T_cam_obj = look_at([0.0, -0.45, 0.35], [0, 0, 0]) @ T_world_obj
     model = MeshRaycaster(asset.surface)
     full = model.depth(K_canvas, T_cam_obj, 3 * W, 3 * H)
-    window = object_depth_canvas(model, asset.surface.vertices, T_cam_obj, K_canvas, W, H)
     assert (full > 0).sum() > 200
-    np.testing.assert_allclose(window.canvas(W, H), full, atol=1e-6)
+    for points in (asset.surface.vertices, trimesh.bounds.corners(asset.surface.bounds)):
+        window = object_depth_canvas(model, points, T_cam_obj, K_canvas, W, H)
+        np.testing.assert_allclose(window.canvas(W, H), full, atol=1e-6)

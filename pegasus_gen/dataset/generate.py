@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import trimesh
 import yaml
 from tqdm import tqdm
 
@@ -205,8 +206,8 @@ def object_depth_canvas(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: n
     absent): one ray through each pixel centre, as a rasteriser samples them, cast only in the window around the
     projection of the model's vertices (the whole canvas when the model reaches behind the camera).
 
-    ``model`` is the object's surface prepared for ray casting and ``vertices`` [V, 3] its vertices (m,
-    object frame).
+    ``model`` is the object's surface prepared for ray casting and ``vertices`` [V, 3] points (m, object frame)
+    whose hull holds it: its vertices, or the corners of its bounding box (a larger window, fewer points).
     """
     pts = vertices @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
     if (pts[:, 2] <= 0.01).any():  # partly behind the camera: cast the whole canvas
@@ -362,8 +363,8 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             for gt_idx, i in enumerate(labelled):
                 asset = objects[i]
                 T_cam_obj = T_cam_world @ poses[i]
-                window = object_depth_canvas(assets.raycaster(asset.manifest.obj_id), asset.surface.vertices,
-                                             T_cam_obj, K_canvas, W, H)
+                window = object_depth_canvas(assets.raycaster(asset.manifest.obj_id),
+                                             trimesh.bounds.corners(asset.surface.bounds), T_cam_obj, K_canvas, W, H)
                 info, mask, visible = bop.gt_info_entry(window, out.depth, K, cfg.visib_delta)
                 name = f"{im_id:06d}_{gt_idx:06d}.png"
                 writer.image(scene_dir / "mask" / name, mask.astype(np.uint8) * 255)
