@@ -145,6 +145,31 @@ def summary(errors: np.ndarray, diameter_m: float) -> dict:
             "median_m": float(np.median(found)) if len(found) else None}
 
 
+def pose_breakdown(matches: list[Match], symmetric: bool) -> dict:
+    """How the estimates found on an instance miss its pose: over the matched instances with an estimate, the
+    median distance ratio (estimated / true distance from the camera: a wrong scale shows as a ratio off 1),
+    the median lateral error (m: how far the estimate's centre, moved along its own viewing ray to the true
+    distance, lies from the true centre), and for asymmetric objects the median rotation error (degrees) and the
+    share beyond 90 degrees (the object's orientation mistaken); None where nothing was found."""
+    found = [m for m in matches if m.T_est is not None]
+    if not found:
+        return {"found": 0, "distance_ratio_median": None, "lateral_error_m_median": None,
+                "rotation_error_deg_median": None, "rotation_over_90deg": None}
+    t_est = np.array([m.T_est[:3, 3] for m in found])
+    t_gt = np.array([m.T_gt[:3, 3] for m in found])
+    ratio = np.linalg.norm(t_est, axis=1) / np.linalg.norm(t_gt, axis=1)
+    towards = t_est / ratio[:, None]  # the estimate's centre moved along its own ray to the true distance
+    lateral = np.linalg.norm(towards - t_gt, axis=1)
+    out = {"found": len(found), "distance_ratio_median": float(np.median(ratio)),
+           "lateral_error_m_median": float(np.median(lateral)), "rotation_error_deg_median": None,
+           "rotation_over_90deg": None}
+    if not symmetric:
+        cos = [(np.trace(m.T_est[:3, :3].T @ m.T_gt[:3, :3]) - 1) / 2 for m in found]
+        angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        out.update(rotation_error_deg_median=float(np.median(angle)), rotation_over_90deg=float((angle > 90).mean()))
+    return out
+
+
 def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibility: float = 0.1,
              max_images: int | None = None, min_score: float = 0.1, refine: bool = False) -> dict:
     """The report (see the module docstring) as a dict; ``max_images`` per scene. With ``refine`` every
@@ -217,7 +242,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
               "false_positives_per_image": false_positives / len(frames) if frames else 0.0,
               "min_visibility": min_visibility, "min_score": min_score,
               "result": summary(adds if symmetric else add, diameter), "ADD": summary(add, diameter),
-              "ADD-S": summary(adds, diameter),
+              "ADD-S": summary(adds, diameter), "found_poses": pose_breakdown(matches, symmetric),
               "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
                                 "add_m": m.add_m if np.isfinite(m.add_m) else None,
                                 "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}

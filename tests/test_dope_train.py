@@ -15,10 +15,12 @@ from scipy.spatial.transform import Rotation
 
 from dope_training.checkpoint import load_checkpoint
 from dope_training.evaluate import (
+    Match,
     auc,
     evaluate,
     match_instances,
     pass_rates,
+    pose_breakdown,
     recall,
     score_threshold,
     summary,
@@ -198,6 +200,28 @@ def test_recall_at_a_tenth_of_the_diameter_is_bops_strict_threshold():
     assert figures["recall_0_1d"] == pytest.approx(2 / 5)
     assert summary(errors, 0.3)["recall_0_1d"] == pytest.approx(4 / 5)
     assert figures["auc_0_10cm"] == pytest.approx(auc(errors)) and recall(np.array([]), 0.01) == 0.0
+
+
+def test_pose_breakdown_tells_scale_offset_and_orientation_apart():
+    truth = _at(0.1, 0.0, 1.0)
+    turned = truth.copy()
+    turned[:3, :3] = truth[:3, :3] @ Rotation.from_euler("z", 120, degrees=True).as_matrix()
+    farther = truth.copy()
+    farther[:3, 3] *= 1.25  # on the same viewing ray, a quarter farther
+    beside = truth.copy()
+    beside[:3, 3] = [0.13, 0.04, 1.0]
+    beside[:3, 3] *= np.linalg.norm(truth[:3, 3]) / np.linalg.norm(beside[:3, 3])  # at the true distance
+    matches = [Match("0", i, 0, 0.0, 0.0, 0.5, T, truth) for i, T in enumerate((turned, farther, beside))]
+    matches.append(Match("0", 3, 0, np.inf, np.inf, None, None, truth))  # a miss does not count
+    b = pose_breakdown(matches, symmetric=False)
+    assert b["found"] == 3 and b["distance_ratio_median"] == pytest.approx(1.0)
+    assert pose_breakdown(matches[1:2], False)["distance_ratio_median"] == pytest.approx(1.25)
+    assert pose_breakdown(matches[1:2], False)["lateral_error_m_median"] == pytest.approx(0.0, abs=1e-12)
+    assert pose_breakdown(matches[2:3], False)["lateral_error_m_median"] == pytest.approx(0.05, rel=0.01)
+    assert b["rotation_error_deg_median"] == pytest.approx(0.0) and b["rotation_over_90deg"] == pytest.approx(1 / 3)
+    assert pose_breakdown(matches[:1], False)["rotation_error_deg_median"] == pytest.approx(120.0)
+    assert pose_breakdown(matches, symmetric=True)["rotation_error_deg_median"] is None
+    assert pose_breakdown(matches[3:], False)["found"] == 0
 
 
 def test_score_threshold_keeps_false_positives_per_image_within_the_bound():
