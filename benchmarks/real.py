@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from dope_training.checkpoint import load_checkpoint
-from dope_training.evaluate import evaluate, score_threshold, write_report
+from dope_training.evaluate import describe_found, evaluate, score_threshold, write_report
 from dope_training.infer import DopeModel
 from dope_training.recipe import (
     HELD_OUT_FALSE_POSITIVES,
@@ -119,17 +119,6 @@ def figures(report: dict) -> dict:
             "false_positives_per_image": round(report["false_positives_per_image"], 3),
             "instances": report["instances"], "misses": report["misses"], "images": report["images"],
             "found_poses": report["found_poses"]}
-
-
-def found_text(row: dict) -> str:
-    """How the found estimates miss their poses, in words (``evaluate.pose_breakdown``)."""
-    b = row["found_poses"]
-    if not b["found"]:
-        return "none found"
-    text = f"found at x{b['distance_ratio_median']:.2f} the distance, {1000 * b['lateral_error_m_median']:.0f} mm aside"
-    if b["rotation_error_deg_median"] is not None:
-        text += f", turned {b['rotation_error_deg_median']:.0f} deg ({b['rotation_over_90deg']:.0%} beyond 90)"
-    return text
 
 
 def main() -> int:
@@ -208,8 +197,8 @@ def main() -> int:
         r, s = rows[i]["real"], rows[i]["synthetic"]
         print(f"obj {i}: real {r['metric']} 0.1d recall {r['recall_0_1d']:.3f}, AUC {r['auc']:.3f}, "
               f"{r['false_positives_per_image']:.2f} false positives per image, {r['misses']} of {r['instances']} "
-              f"missed (min score {min_score:.2f}; {found_text(r)}); synthetic held-out recall "
-              f"{s['recall_0_1d']:.3f}, AUC {s['auc']:.3f} ({found_text(s)})", flush=True)
+              f"missed (min score {min_score:.2f}; {describe_found(r['found_poses'])}); synthetic held-out recall "
+              f"{s['recall_0_1d']:.3f}, AUC {s['auc']:.3f} ({describe_found(s['found_poses'])})", flush=True)
 
     mean = {k: float(np.mean([rows[i]["real"][k] for i in ids])) for k in ("recall_0_1d", "auc",
                                                                           "false_positives_per_image")}

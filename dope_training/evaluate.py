@@ -170,6 +170,18 @@ def pose_breakdown(matches: list[Match], symmetric: bool) -> dict:
     return out
 
 
+def describe_found(breakdown: dict) -> str:
+    """A :func:`pose_breakdown` in words."""
+    if not breakdown["found"]:
+        return "none found"
+    text = (f"found at x{breakdown['distance_ratio_median']:.2f} the distance, "
+            f"{1000 * breakdown['lateral_error_m_median']:.0f} mm aside")
+    if breakdown["rotation_error_deg_median"] is not None:
+        text += (f", turned {breakdown['rotation_error_deg_median']:.0f} deg "
+                 f"({breakdown['rotation_over_90deg']:.0%} beyond 90)")
+    return text
+
+
 def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibility: float = 0.1,
              max_images: int | None = None, min_score: float = 0.1, refine: bool = False) -> dict:
     """The report (see the module docstring) as a dict; ``max_images`` per scene. With ``refine`` every

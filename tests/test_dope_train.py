@@ -17,6 +17,7 @@ from dope_training.checkpoint import load_checkpoint
 from dope_training.evaluate import (
     Match,
     auc,
+    describe_found,
     evaluate,
     match_instances,
     pass_rates,
@@ -222,6 +223,9 @@ def test_pose_breakdown_tells_scale_offset_and_orientation_apart():
     assert pose_breakdown(matches[:1], False)["rotation_error_deg_median"] == pytest.approx(120.0)
     assert pose_breakdown(matches, symmetric=True)["rotation_error_deg_median"] is None
     assert pose_breakdown(matches[3:], False)["found"] == 0
+    assert describe_found(pose_breakdown(matches[:1], False)) == ("found at x1.00 the distance, 0 mm aside, "
+                                                                  "turned 120 deg (100% beyond 90)")
+    assert describe_found(pose_breakdown(matches[3:], False)) == "none found"
 
 
 def test_score_threshold_keeps_false_positives_per_image_within_the_bound():

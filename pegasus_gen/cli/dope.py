@@ -117,7 +117,7 @@ def cmd_infer(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from dope_training.evaluate import evaluate, write_report
+    from dope_training.evaluate import describe_found, evaluate, write_report
     from dope_training.infer import DopeModel
     from pegasus_gen.dataset.bop import write_bop_results
 
@@ -139,6 +139,7 @@ def cmd_eval(args) -> int:
     print(f"{report['metric']}: recall at 0.1 d {r['recall_0_1d']:.3f}, AUC(0-10 cm) {r['auc_0_10cm']:.3f}, "
           "pass 2/5/10 cm "
           f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f}")
+    print(f"median of the estimates on an instance: {describe_found(report['found_poses'])}")
     if "refined" in report:
         r = report["refined"]["result"]
         print(f"{report['metric']} with depth refinement: AUC(0-10 cm) {r['auc_0_10cm']:.3f}, pass 2/5/10 cm "
