@@ -1,14 +1,14 @@
 """gsplat CUDA backend of :func:`pegasus_gen.render.renderer.render` (needs torch with CUDA and
 ``pip install '.[cuda]'``).
 
-A scene's splats are concatenated and uploaded once and kept on the GPU while the same parts are rendered
-again (the frames of a static scene). Per frame: colour from gsplat's SH evaluation; the instance labels as
-one-hot feature channels through the same blend; depth by the CPU renderer's rule, each splat's depth on a
-pixel's ray being a plane A + B u + C v over the image (:func:`pegasus_gen.render.differentiable.depth_planes`),
-rendered as three feature channels and evaluated per pixel (the CPU's clamp at 3.33 standard deviations of z
-aside: tests/test_depth_planes.py measures what it changes). gsplat samples pixel (u, v) at (u + 0.5, v + 0.5),
-so the principal point is shifted by +0.5 to keep the OpenCV convention of the CPU backend. The images come
-back to the host in one float32 copy.
+Each part of a scene (a SplatCloud) is uploaded once and kept on the GPU while it lives, and a scene's parts
+are concatenated there once while the same parts are rendered again (the frames of a static scene). Per frame:
+colour from gsplat's SH evaluation; the instance labels as one-hot feature channels through the same blend;
+depth by the CPU renderer's rule, each splat's depth on a pixel's ray being a plane A + B u + C v over the image
+(:func:`pegasus_gen.render.differentiable.depth_planes`), rendered as three feature channels and evaluated per
+pixel (the CPU's clamp at 3.33 standard deviations of z aside: tests/test_depth_planes.py measures what it
+changes). gsplat samples pixel (u, v) at (u + 0.5, v + 0.5), so the principal point is shifted by +0.5 to keep
+the OpenCV convention of the CPU backend. The images come back to the host in one float32 copy.
 """
 
 from __future__ import annotations
@@ -20,33 +20,45 @@ import torch
 
 from pegasus_gen.render.differentiable import depth_planes
 
-_SCENE: dict = {}  # the last scene uploaded: "parts" (weak references) and its device tensors
+_PARTS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()  # SplatCloud -> its device tensors
+_SCENE: dict = {}  # the last scene rendered: "parts" (weak references) and its concatenated device tensors
+
+
+def _part_on_gpu(cloud, device) -> dict:
+    """Device tensors of one cloud (uploaded on first use, kept while the cloud lives)."""
+    cached = _PARTS.get(cloud)
+    if cached is None:
+        cached = _PARTS[cloud] = {
+            "means": torch.from_numpy(cloud.means).to(device, torch.float32),
+            "quats": torch.from_numpy(cloud.quats_wxyz).to(device, torch.float32),
+            "log_scales": torch.from_numpy(cloud.log_scales).to(device, torch.float32),
+            "opacity_logits": torch.from_numpy(cloud.opacity_logits).to(device, torch.float32),
+            "sh": torch.from_numpy(cloud.sh).to(device, torch.float32)}
+    return cached
 
 
 def _scene_on_gpu(parts, label_index, device) -> dict:
-    """Device tensors of the splats of ``parts`` concatenated (uploaded when the parts differ from the last
-    call's): means [N, 3], quats [N, 4], log_scales [N, 3], scales [N, 3], opacities [N], sh [N, K, 3] (parts
-    of lower SH degree padded with zeros), sh_degree, labels [N] int64 dense label index."""
+    """Device tensors of the splats of ``parts`` concatenated (each part uploaded once while it lives; the
+    concatenation made again only when the parts differ from the last call's): means [N, 3], quats [N, 4],
+    log_scales [N, 3], scales [N, 3], opacities [N], sh [N, K, 3] (parts of lower SH degree padded with zeros),
+    sh_degree, labels [N] int64 dense label index."""
     refs = _SCENE.get("parts", ())
     if len(refs) == len(parts) and all(r() is p for r, p in zip(refs, parts)):
         return _SCENE
+    on_gpu = [_part_on_gpu(p, device) for p in parts]
     k = max(p.sh.shape[1] for p in parts)
 
-    def upload(arrays, dtype=torch.float32):
-        return torch.from_numpy(np.concatenate(arrays)).to(device=device, dtype=dtype)
+    def cat(key):
+        return torch.cat([g[key] for g in on_gpu])
 
-    log_scales = upload([p.log_scales for p in parts])
     _SCENE.clear()
     _SCENE.update({
         "parts": tuple(weakref.ref(p) for p in parts),
-        "means": upload([p.means for p in parts]),
-        "quats": upload([p.quats_wxyz for p in parts]),
-        "log_scales": log_scales,
-        "scales": log_scales.exp(),
-        "opacities": torch.sigmoid(upload([p.opacity_logits for p in parts])),
-        "sh": upload([np.pad(p.sh, ((0, 0), (0, k - p.sh.shape[1]), (0, 0))) for p in parts]),
+        "means": cat("means"), "quats": cat("quats"), "log_scales": cat("log_scales"),
+        "scales": cat("log_scales").exp(), "opacities": torch.sigmoid(cat("opacity_logits")),
+        "sh": torch.cat([torch.nn.functional.pad(g["sh"], (0, 0, 0, k - g["sh"].shape[1])) for g in on_gpu]),
         "sh_degree": int(round(k ** 0.5)) - 1,
-        "labels": upload(label_index, torch.int64),
+        "labels": torch.from_numpy(np.concatenate(label_index)).to(device, torch.int64),
     })
     return _SCENE
 
