@@ -25,6 +25,8 @@ ALPHA_MAX = 0.999  # per-splat alpha clamp (gsplat; INRIA uses 0.99)
 T_MIN = 1e-4  # a pixel stops when its transmittance would fall to this
 EXTEND_MAX = 3.33  # pixel-box half size in standard deviations, at most
 TILE = 16
+NEAR_PLANE = 0.01  # metres, as gsplat
+EPS2D = 0.3  # pixels^2 added to the 2D covariance diagonal (anti-aliasing low-pass), as 3DGS
 PROJECT_CHUNK = 4096  # splats per parallel work item in project()
 GRAD_EPS = 1e-3  # px^2 added to the undilated 2D covariance before the depth gradient inverts it
 

@@ -36,8 +36,16 @@ from torch.utils.checkpoint import checkpoint
 
 # the forward math's constants are the numba renderer's (alpha threshold and clamp, early termination,
 # pixel-box extent, frustum clamp, near plane, low-pass)
-from pegasus_gen.render.cpu import ALPHA_MAX, ALPHA_THRESHOLD, EXTEND_MAX, GRAD_EPS, T_MIN, frustum_limits
-from pegasus_gen.render.renderer import EPS2D, NEAR_PLANE
+from pegasus_gen.render.cpu import (
+    ALPHA_MAX,
+    ALPHA_THRESHOLD,
+    EPS2D,
+    EXTEND_MAX,
+    GRAD_EPS,
+    NEAR_PLANE,
+    T_MIN,
+    frustum_limits,
+)
 from pegasus_gen.splats import sh as shlib
 
 TILE = 8  # pixels per tile side (8 beat 16 on CPU: less dense work per tile)

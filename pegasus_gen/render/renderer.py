@@ -18,12 +18,11 @@ import numpy as np
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.render import cpu as rasterizer_cpu
+from pegasus_gen.render.cpu import EPS2D, NEAR_PLANE
 from pegasus_gen.splats.cloud import SplatCloud, is_rigid
 
 log = logging.getLogger("pegasus.render")
 
-NEAR_PLANE = 0.01  # metres, as gsplat
-EPS2D = 0.3  # pixels^2 added to the 2D covariance diagonal (anti-aliasing low-pass), as 3DGS
 DEFAULT_ALPHA_MIN = 0.5  # depth is reported where the accumulated alpha reaches this
 BYTES_PER_PIXEL = 80  # host memory of a render per pixel, its PNGs included (65 measured on the CPU backend)
 BYTES_PER_LABEL_PIXEL = 4  # and per pixel of each requested label's blend weights (float32)
