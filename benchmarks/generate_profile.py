@@ -36,7 +36,7 @@ STAGES = (("assets' models + models_eval (once)", "write_models"),
           ("appearance + contact shadows", "place_objects"),
           ("render", "render"),
           ("camera effects", "camera_image"),
-          ("label ray casts", "object_depth_canvas"),
+          ("label ray casts", "object_depth_window"),
           ("masks + gt_info", "gt_info_entry"),
           ("COCO (per scene)", "scene_coco"))
 THREADED = "image encoding + writing (writer threads)"

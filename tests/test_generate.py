@@ -177,7 +177,7 @@ def test_static_scene_keeps_the_rest_poses_in_every_frame(library, tmp_path):
 
 @pytest.mark.parametrize("offset", [[0.0, 0.0, 0.0], [0.35, 0.1, 0.0], [0.0, -0.3, 0.2]])
 def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
-    from pegasus_gen.dataset.generate import object_depth_canvas
+    from pegasus_gen.dataset.generate import object_depth_window
     from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
     from pegasus_gen.render.raycast import MeshRaycaster
 
@@ -193,5 +193,5 @@ def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
     full = model.depth(K_canvas, T_cam_obj, 3 * W, 3 * H)
     assert (full > 0).sum() > 200
     for points in (asset.surface.vertices, trimesh.bounds.corners(asset.surface.bounds)):
-        window = object_depth_canvas(model, points, T_cam_obj, K_canvas, W, H)
+        window = object_depth_window(model, points, T_cam_obj, K_canvas, W, H)
         np.testing.assert_allclose(window.canvas(W, H), full, atol=1e-6)

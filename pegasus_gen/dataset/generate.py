@@ -182,6 +182,7 @@ def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
     distractors = [make_distractor(cfg.distractors, clutter_rng, k) for k in range(count)]
     upright_rng = np.random.default_rng([cfg.seed, scene_id, UPRIGHT_STREAM])
     orientations = [upright_quat_xyzw(upright_rng) if upright_rng.random() < cfg.upright else None for _ in objects]
+    orientations += [None] * len(distractors)  # distractors fall in a random orientation
     drop = drop_objects(env, objects + distractors, rng, record_fps=cfg.fps if cfg.dynamic else None,
                         orientations=orientations)
     return ScenePlan(env, objects + distractors, len(objects), drop, rng)
@@ -200,7 +201,7 @@ def frame_poses(plan: ScenePlan, im_id: int, dynamic: bool) -> dict[int, np.ndar
 BLOCKING_MARGIN = 0.03  # m: the environment may come this close in front of an object's centre (its support)
 
 
-def object_depth_canvas(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: np.ndarray, K_canvas: np.ndarray,
+def object_depth_window(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: np.ndarray, K_canvas: np.ndarray,
                         width: int, height: int) -> bop.CanvasWindow:
     """The z-depth (m) of one placed object's model alone on the 3x canvas of calc_gt_info (0 where it is
     absent): one ray through each pixel centre, as a rasteriser samples them, cast only in the window around the
@@ -363,7 +364,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             for gt_idx, i in enumerate(labelled):
                 asset = objects[i]
                 T_cam_obj = T_cam_world @ poses[i]
-                window = object_depth_canvas(assets.raycaster(asset.manifest.obj_id),
+                window = object_depth_window(assets.raycaster(asset.manifest.obj_id),
                                              trimesh.bounds.corners(asset.surface.bounds), T_cam_obj, K_canvas, W, H)
                 info, mask, visible = bop.gt_info_entry(window, out.depth, K, cfg.visib_delta)
                 name = f"{im_id:06d}_{gt_idx:06d}.png"

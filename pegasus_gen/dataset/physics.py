@@ -147,8 +147,8 @@ class World:
 def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.random.Generator,
                 params: PhysicsParams = PhysicsParams(), orientations: Sequence | None = None) -> list[np.ndarray]:
     """Non-overlapping T_world_obj above the environment's drop region: object k turned by ``orientations[k]``
-    (a quaternion [4] x, y, z, w) where given and not None (the list may cover the first objects only), else by
-    a uniformly random rotation.
+    (a quaternion [4] x, y, z, w, one entry per object) where given and not None, else by a uniformly random
+    rotation.
 
     Objects that do not fit side by side are stacked in layers above each other.
     """
@@ -169,7 +169,7 @@ def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.r
             centre = np.r_[rng.uniform([region.x_min, region.y_min], [region.x_max, region.y_max]),
                            layer_base + radius]
         placed.append((centre, radius))
-        given = orientations[k] if orientations is not None and k < len(orientations) else None
+        given = orientations[k] if orientations is not None else None
         T = _matrix(centre, random_quat_xyzw(rng) if given is None else given)
         poses.append(T)
     return poses
