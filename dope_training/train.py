@@ -51,7 +51,7 @@ from dope_training.train_config import TrainConfig
 from pegasus_gen.dataset.bop import model_boxes, object_names
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io import images
-from pegasus_gen.io.files import read_json, write_atomic
+from pegasus_gen.io.files import link_atomic, read_json, write_atomic
 from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.io.plots import line_chart
 
@@ -179,15 +179,24 @@ def loss_curve(rows: list[dict]) -> np.ndarray:
     return line_chart(series, "DOPE training loss", "epoch", "loss", log_y=True)
 
 
+def set_training(model: DopeNetwork, freeze_trunk: bool) -> None:
+    """Training mode, except a frozen trunk: its BatchNorm keeps normalising with the statistics it was
+    pretrained with."""
+    model.train()
+    if freeze_trunk:
+        model.features.eval()
+
+
 def belief_snapshot(model: DopeNetwork, crop: np.ndarray, target: np.ndarray, device: torch.device) -> np.ndarray:
     """RGB image: the crop [S, S, 3] uint8, the target beliefs' max over the 9 maps and the last stage's
     predicted max (turbo colour map, 0..1), side by side."""
-    was_training = model.training
+    modes = [m.training for m in model.modules()]
     model.eval()
     with torch.no_grad():
         x = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1)[None].float().to(device) / 255.0
         predicted = model(x)[-1][0][0].float().cpu().numpy()
-    model.train(was_training)
+    for module, mode in zip(model.modules(), modes):
+        module.training = mode
     size = crop.shape[0]
 
     def colour(maps):
@@ -283,7 +292,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     check_memory(memory_estimate(architecture, cfg.size, cfg.size, cfg.batch_size, training=True), device,
                  f"training on {cfg.size} px crops in batches of {cfg.batch_size}")
     model.to(device)
-    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    model.features.requires_grad_(not cfg.freeze_trunk)
+    optimiser = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
     first_epoch, step = 0, 0
@@ -321,7 +331,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
               f"{' with AMP' if use_amp else ''}; epochs {first_epoch + 1}..{cfg.epochs}; output {out}")
     per_epoch = math.ceil(len(dataset) / world / cfg.batch_size)
     bar = tqdm(total=(cfg.epochs - first_epoch) * len(dataset), unit="img", disable=rank != 0, dynamic_ncols=True)
-    model.train()
+    set_training(model, cfg.freeze_trunk)
     for epoch in range(first_epoch, cfg.epochs):
         dataset.epoch = epoch
         sampler.set_epoch(epoch)
@@ -366,8 +376,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
                           "scaler": scaler.state_dict(), "epoch": epoch + 1, "step": step,
                           "model_config": model_config(model), "train_config": cfg.model_dump(mode="json"),
                           "object": asdict(target), "stride": dataset.stride}
-            write_atomic(out / f"epoch_{epoch + 1:04d}.pt", lambda f: torch.save(checkpoint, f))
-            write_atomic(out / "last.pt", lambda f: torch.save(checkpoint, f))
+            saved = write_atomic(out / f"epoch_{epoch + 1:04d}.pt", lambda f: torch.save(checkpoint, f))
+            link_atomic(saved, out / "last.pt")  # the same file: a full network's checkpoint is ~600 MB
             for old in sorted(out.glob("epoch_*.pt"))[:-cfg.keep_checkpoints]:
                 old.unlink()
         if world > 1:

@@ -11,6 +11,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
+import torch
 from scipy.spatial.transform import Rotation
 
 from dope_training.checkpoint import load_checkpoint
@@ -103,6 +104,7 @@ def test_resumed_training_continues_the_loss_curve_exactly(dope_dataset, tmp_pat
     a, b = losses(straight), losses(resumed)
     assert len(a) == len(b) == 8 and [r[0] for r in a] == [r[0] for r in b]
     np.testing.assert_allclose([r[1] for r in a], [r[1] for r in b], rtol=1e-5)
+    assert os.path.samefile(resumed / "last.pt", resumed / "epoch_0004.pt")  # one checkpoint written per epoch
     state = load_checkpoint(resumed / "last.pt")
     assert state["epoch"] == 4 and state["step"] == 8 and state["optimizer"]["state"]
     with pytest.raises(PegasusError, match="already trained 4 epochs"):
@@ -319,3 +321,27 @@ def test_loader_workers_default_to_the_cores_on_cuda_and_two_on_the_cpu(monkeypa
     assert loader_workers(explicit, torch.device("cuda")) == loader_workers(explicit, torch.device("cpu")) == 5
     with pytest.raises(ValueError):
         TrainConfig(data=["x"], object="o", out="r", loader_workers=-2)
+
+
+def test_a_frozen_trunk_keeps_its_imagenet_weights_and_statistics_while_the_stages_learn(dope_dataset, tmp_path):
+    from dope_training.backbone import LiteTrunk, load_pretrained
+
+    imagenet = LiteTrunk()
+    load_pretrained(imagenet)
+    for freeze in (True, False):
+        run = train(small(dope_dataset, tmp_path / str(freeze), variant="pretrained", epochs=1, freeze_trunk=freeze))
+        state = load_checkpoint(run / "last.pt")
+        trunk = {k[len("features."):]: v for k, v in state["model"].items() if k.startswith("features.")}
+        changed = [k for k, v in imagenet.state_dict().items()
+                   if v.dtype.is_floating_point and not torch.equal(v, trunk[k])]
+        stages = [k for k in state["model"] if k.startswith("beliefs.")]
+        assert stages and state["train_config"]["freeze_trunk"] is freeze
+        if freeze:  # weights and BatchNorm running statistics as pretrained; only trainable tensors in Adam
+            assert changed == []
+            assert len(state["optimizer"]["param_groups"][0]["params"]) == sum(
+                1 for k, v in state["model"].items() if not k.startswith("features.") and "running" not in k
+                and "num_batches" not in k)
+        else:  # unfrozen, both the weights and the running statistics move
+            assert any(k.endswith("weight") for k in changed) and any("running_mean" in k for k in changed)
+    with pytest.raises(ValueError, match="freeze_trunk"):
+        small(dope_dataset, tmp_path / "light", variant="light", freeze_trunk=True)

@@ -167,6 +167,28 @@ def test_dynamic_scene_gt_follows_the_physics_of_each_frame(library, tmp_path):
     assert np.linalg.norm(written[0][0][:3, 3] - written[5][0][:3, 3]) > 0.01  # they really move
 
 
+def test_a_scene_whose_targets_all_fell_off_is_dropped_again_and_then_refused(library, tmp_path, monkeypatch):
+    import dataclasses
+
+    from pegasus_gen.dataset import generate as gen
+
+    cfg = config(library, tmp_path / "x", "scenes=1", "frames_per_scene=1")
+    real_drop, calls = gen.drop_objects, []
+
+    def drop(*args, **kwargs):  # the real drop; its first result as if every object had fallen off
+        result = real_drop(*args, **kwargs)
+        calls.append(result)
+        return dataclasses.replace(result, poses={}, removed=sorted(result.poses)) if len(calls) == 1 else result
+
+    monkeypatch.setattr(gen, "drop_objects", drop)
+    plan = gen.plan_scene(0, cfg, gen.load_assets(cfg))
+    assert len(calls) == 2 and plan.drop is calls[1] and plan.labelled(sorted(plan.drop.poses))
+    assert not np.allclose(calls[0].poses[0], calls[1].poses[0])  # dropped again from new spawn poses
+    monkeypatch.setattr(gen, "drop_objects", lambda *a, **k: dataclasses.replace(real_drop(*a, **k), poses={}))
+    with pytest.raises(PegasusError, match=f"in {gen.DROP_ATTEMPTS} drops"):
+        gen.generate(config(library, tmp_path / "y", "scenes=1", "frames_per_scene=1"))
+
+
 def test_static_scene_keeps_the_rest_poses_in_every_frame(library, tmp_path):
     out = generate(config(library, tmp_path / "static", "scenes=1", "frames_per_scene=3"))
     written = world_poses(out / "train_pbr" / "000000")

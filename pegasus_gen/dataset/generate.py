@@ -172,8 +172,12 @@ class ScenePlan:
         return [i for i in indices if i < self.targets]
 
 
+DROP_ATTEMPTS = 5  # drops of a scene's objects (new spawn poses each) before a scene without targets is an error
+
+
 def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
-    """Choose and simulate scene ``scene_id``; deterministic in (cfg.seed, scene_id)."""
+    """Choose and simulate scene ``scene_id``; deterministic in (cfg.seed, scene_id). When every target
+    object falls off the support, they are dropped again from new spawn poses (``DROP_ATTEMPTS`` in all)."""
     rng = np.random.default_rng([cfg.seed, scene_id])
     env = assets.environments[int(rng.integers(len(assets.environments)))]
     objects = _choose_objects(cfg, assets, rng)
@@ -183,8 +187,11 @@ def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
     upright_rng = np.random.default_rng([cfg.seed, scene_id, UPRIGHT_STREAM])
     orientations = [upright_quat_xyzw(upright_rng) if upright_rng.random() < cfg.upright else None for _ in objects]
     orientations += [None] * len(distractors)  # distractors fall in a random orientation
-    drop = drop_objects(env, objects + distractors, rng, record_fps=cfg.fps if cfg.dynamic else None,
-                        orientations=orientations)
+    for _ in range(DROP_ATTEMPTS):  # the same draws as before unless every target fell off
+        drop = drop_objects(env, objects + distractors, rng, record_fps=cfg.fps if cfg.dynamic else None,
+                            orientations=orientations)
+        if any(i < len(objects) for i in drop.poses):
+            break
     return ScenePlan(env, objects + distractors, len(objects), drop, rng)
 
 
@@ -332,7 +339,8 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     kept = sorted(drop.poses)
     labelled = plan.labelled(kept)
     if not labelled:
-        raise PegasusError(f"scene {scene_id}: every object left the support of {env.name}")
+        raise PegasusError(f"scene {scene_id}: every object left the support of {env.name} in {DROP_ATTEMPTS} drops "
+                           "(a support too small for them?)")
     K = camera_matrix(cfg)
     cams = camera_trajectory(plan, cfg, K)
     W, H = cfg.camera.width, cfg.camera.height
