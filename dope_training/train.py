@@ -179,24 +179,15 @@ def loss_curve(rows: list[dict]) -> np.ndarray:
     return line_chart(series, "DOPE training loss", "epoch", "loss", log_y=True)
 
 
-def set_training(model: DopeNetwork, freeze_trunk: bool) -> None:
-    """Training mode, except a frozen trunk: its BatchNorm keeps normalising with the statistics it was
-    pretrained with."""
-    model.train()
-    if freeze_trunk:
-        model.features.eval()
-
-
 def belief_snapshot(model: DopeNetwork, crop: np.ndarray, target: np.ndarray, device: torch.device) -> np.ndarray:
     """RGB image: the crop [S, S, 3] uint8, the target beliefs' max over the 9 maps and the last stage's
     predicted max (turbo colour map, 0..1), side by side."""
-    modes = [m.training for m in model.modules()]
+    was_training = model.training
     model.eval()
     with torch.no_grad():
         x = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1)[None].float().to(device) / 255.0
         predicted = model(x)[-1][0][0].float().cpu().numpy()
-    for module, mode in zip(model.modules(), modes):
-        module.training = mode
+    model.train(was_training)
     size = crop.shape[0]
 
     def colour(maps):
@@ -292,8 +283,10 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     check_memory(memory_estimate(architecture, cfg.size, cfg.size, cfg.batch_size, training=True), device,
                  f"training on {cfg.size} px crops in batches of {cfg.batch_size}")
     model.to(device)
-    model.features.requires_grad_(not cfg.freeze_trunk)
-    optimiser = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
+    trunk = {id(p) for p in model.features.parameters()}
+    optimiser = torch.optim.Adam([  # lr_scale: each group's share of the schedule's learning rate
+        {"params": [p for p in model.parameters() if id(p) in trunk], "lr_scale": cfg.trunk_lr_scale},
+        {"params": [p for p in model.parameters() if id(p) not in trunk], "lr_scale": 1.0}], lr=cfg.lr)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
     first_epoch, step = 0, 0
@@ -331,7 +324,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
               f"{' with AMP' if use_amp else ''}; epochs {first_epoch + 1}..{cfg.epochs}; output {out}")
     per_epoch = math.ceil(len(dataset) / world / cfg.batch_size)
     bar = tqdm(total=(cfg.epochs - first_epoch) * len(dataset), unit="img", disable=rank != 0, dynamic_ncols=True)
-    set_training(model, cfg.freeze_trunk)
+    model.train()
     for epoch in range(first_epoch, cfg.epochs):
         dataset.epoch = epoch
         sampler.set_epoch(epoch)
@@ -348,7 +341,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
                 scaler.scale(loss).backward()
                 lr = learning_rate(cfg, step, per_epoch * cfg.epochs)
                 for group in optimiser.param_groups:
-                    group["lr"] = lr
+                    group["lr"] = lr * group["lr_scale"]
                 scaler.step(optimiser)
                 scaler.update()
                 counts = torch.tensor([loss.item() * len(image), float(len(image))], dtype=torch.float64)
