@@ -195,6 +195,8 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     if not np.allclose(info.bbox_size, obj.bbox_size, atol=1e-3):
         raise PegasusError(f"{root}: obj_id {obj.obj_id} is {np.round(info.bbox_size, 3).tolist()} m, the model's "
                            f"object {obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
+    if info.diameter is None:
+        raise PegasusError(f"{root}: models_info.json gives obj_id {obj.obj_id} no diameter")
     symmetric = info.symmetric or obj.symmetric
     diameter = info.diameter
     points = model_points(root, obj.obj_id)

@@ -190,12 +190,12 @@ def model_boxes(root: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 @dataclass(frozen=True)
 class ModelInfo:
-    """One object's models_info.json entry in metres: bbox_min [3], bbox_size [3], diameter; whether it
-    lists discrete or continuous symmetries."""
+    """One object's models_info.json entry in metres: bbox_min [3], bbox_size [3], diameter (None where the
+    entry has none); whether it lists discrete or continuous symmetries."""
 
     bbox_min: np.ndarray
     bbox_size: np.ndarray
-    diameter: float
+    diameter: float | None
     symmetric: bool
 
 
@@ -208,7 +208,7 @@ def models_info(root: Path) -> dict[int, ModelInfo]:
         try:
             out[int(key)] = ModelInfo(np.array([v["min_x"], v["min_y"], v["min_z"]], float) / 1000.0,
                                       np.array([v["size_x"], v["size_y"], v["size_z"]], float) / 1000.0,
-                                      float(v["diameter"]) / 1000.0,
+                                      float(v["diameter"]) / 1000.0 if "diameter" in v else None,
                                       bool(v.get("symmetries_discrete") or v.get("symmetries_continuous")))
         except (KeyError, TypeError, ValueError) as exc:
             raise PegasusError(f"{path}: obj_id {key}: not a BOP models_info entry ({type(exc).__name__}: {exc})") \
