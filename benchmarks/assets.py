@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 
 from pegasus_gen.assets.collision import splats_to_mesh
-from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.splats.from_mesh import mesh_to_splats
 

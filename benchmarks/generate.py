@@ -15,7 +15,7 @@ import platform
 import tempfile
 import time
 
-from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate

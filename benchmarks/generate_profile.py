@@ -22,23 +22,25 @@ from collections import defaultdict
 from pathlib import Path
 
 import pegasus_gen.dataset.generate as gen
-from pegasus_gen.assets.demo import build_demo_library
+import pegasus_gen.dataset.scene as scene
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.importers import import_mesh
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config
+from pegasus_gen.formats import bop
 
 DEMO_OBJECTS = ("[{asset: 1, count: [0, 1]}, {asset: 2, count: [0, 1]}, {asset: 5, count: [0, 1]},"
                 " {asset: 7, count: [1, 1]}, {asset: 8, count: [1, 2]}]")
-# (label, attribute of pegasus_gen.dataset.generate): the stages of one scene, in order
-STAGES = (("assets' models + models_eval (once)", "write_models"),
-          ("physics drop (per scene)", "drop_objects"),
-          ("camera trajectory (per scene)", "camera_trajectory"),
-          ("appearance + contact shadows", "place_objects"),
-          ("render", "render"),
-          ("camera effects", "camera_image"),
-          ("label ray casts", "object_depth_window"),
-          ("masks + gt_info", "gt_info_entry"),
-          ("COCO (per scene)", "scene_coco"))
+# (label, module, attribute): the stages of one scene, in order, where the run and the scene look them up
+STAGES = (("assets' models + models_eval (once)", gen, "write_models"),
+          ("physics drop (per scene)", scene, "drop_objects"),
+          ("camera trajectory (per scene)", scene, "camera_trajectory"),
+          ("appearance + contact shadows", scene, "place_objects"),
+          ("render", scene, "render"),
+          ("camera effects", scene, "camera_image"),
+          ("label ray casts", scene, "object_depth_window"),
+          ("masks + gt_info", bop, "gt_info_entry"),
+          ("COCO (per scene)", scene, "scene_coco"))
 THREADED = "image encoding + writing (writer threads)"
 
 
@@ -61,13 +63,10 @@ class Timer:
 
 
 def install(timer: Timer) -> None:
-    """Wrap the stages where ``dataset.generate`` looks them up."""
-    for label, name in STAGES:
-        if name == "gt_info_entry":
-            gen.bop.gt_info_entry = timer.wrap(label, gen.bop.gt_info_entry)
-        else:
-            setattr(gen, name, timer.wrap(label, getattr(gen, name)))
-    gen.write_image = timer.wrap(THREADED, gen.write_image)
+    """Wrap the stages where the run and the scene look them up."""
+    for label, module, name in STAGES:
+        setattr(module, name, timer.wrap(label, getattr(module, name)))
+    scene.write_image = timer.wrap(THREADED, scene.write_image)
 
 
 def main():
@@ -104,9 +103,9 @@ def main():
         tail = f"{100 * seconds / total:5.1f} %" if share else "(overlapped)"
         print(f"  {label:42s} {1000 * seconds / frames:7.1f} ms/frame {tail}")
 
-    for label, _ in STAGES:
+    for label, _, _ in STAGES:
         row(label, timer.seconds[label])
-    row("rest (loop, JSON, waiting for writers)", total - sum(timer.seconds[label] for label, _ in STAGES))
+    row("rest (loop, JSON, waiting for writers)", total - sum(timer.seconds[label] for label, _, _ in STAGES))
     row(THREADED, timer.seconds[THREADED], share=False)
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from nodes.demo import DemoSettings, run_demo
+from nodes.demo_loop import DemoSettings, run_demo
 
 
 def main() -> None:

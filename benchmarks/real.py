@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from dope_training.checkpoint import load_checkpoint
-from dope_training.evaluate import describe_found, evaluate, score_threshold, write_report
+from dope_training.evaluate import describe_found, evaluate, score_threshold, write_eval_report
 from dope_training.infer import DopeModel
 from dope_training.recipe import (
     HELD_OUT_FALSE_POSITIVES,
@@ -57,13 +57,13 @@ from dope_training.recipe import (
 )
 from dope_training.train import train
 from dope_training.train_config import TrainConfig, parse_options
-from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.importers import import_mesh
 from pegasus_gen.assets.library import AssetLibrary
-from pegasus_gen.dataset.bop import bop_frames
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import bop_frames
 from pegasus_gen.io.files import read_json
 
 ENVIRONMENTS = "[wooden_table, tiled_floor, store_shelf]"
@@ -187,10 +187,10 @@ def main() -> int:
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
         synthetic = evaluate(model, held_out, "train_pbr")
-        write_report(synthetic, out / "eval_synthetic" / f"obj_{i:06d}")
+        write_eval_report(synthetic, out / "eval_synthetic" / f"obj_{i:06d}")
         min_score = score_threshold(synthetic, HELD_OUT_FALSE_POSITIVES)
         report = evaluate(model, root, args.split, max_images=args.max_images, min_score=min_score)
-        write_report(report, out / "eval" / f"obj_{i:06d}")
+        write_eval_report(report, out / "eval" / f"obj_{i:06d}")
         times[f"evaluate obj {i}"] = time.monotonic() - t0
         rows[i] = {"real": figures(report), "synthetic": figures(synthetic), "focal_px": focal[i],
                    "diameter_m": diameters[i], "min_score": min_score}

@@ -18,7 +18,8 @@ import numpy as np
 
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.scan.capture import write_capture
-from pegasus_gen.scan.pipeline import ScanOptions, fit_similarity, run_scan
+from pegasus_gen.scan.frame import fit_similarity
+from pegasus_gen.scan.pipeline import ScanOptions, run_scan
 
 
 def main():

@@ -10,7 +10,7 @@ camera fx ``--camera-fx``, generate's defaults (shadows, appearance randomisatio
 distractors.count=[0,0]`` for the plain render; made once per setting and reused from ``--work``); the held-out
 set, made once (store_shelf, left out of training, 2 scenes x 15 frames at 640x480 with the simulated cell's
 camera: 60 degree field of view, 0.55-0.8 m, 45-65 degrees elevation); a training run with the recipe (``demo``:
-the demo's, from ``nodes.demo.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields
+the demo's, from ``nodes.demo_loop.DemoSettings``; ``dope``: TrainConfig's defaults, DOPE's) and the TrainConfig fields
 given as ``--train key=value`` on top (values parsed as YAML); the held-out ADD-S AUC (0-10 cm) and pass rates of
 DOPE alone and with depth refinement. Prints one row and appends it to ``--work``/results.csv. ``--reuse RUN``
 skips the training and scores the finished run ``--work``/runs/RUN with today's decoder (the row's train figures
@@ -30,12 +30,12 @@ from pathlib import Path
 
 import torch
 
-from dope_training.evaluate import evaluate, write_report
+from dope_training.evaluate import evaluate, write_eval_report
 from dope_training.infer import DopeModel
 from dope_training.train import read_losses, train
 from dope_training.train_config import TrainConfig, parse_options
-from nodes.demo import DemoSettings, held_out_overrides
-from pegasus_gen.assets.demo import build_demo_library
+from nodes.demo_loop import DemoSettings, held_out_overrides
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
@@ -108,7 +108,7 @@ def main() -> None:
         rate = round(sum(r["images"] for r in read_losses(out / "loss.csv")) / t_train, 1)
     rows = read_losses(out / "loss.csv")
     report = evaluate(DopeModel(out / "last.pt"), held_out, "train_pbr", refine=True)
-    write_report(report, out / f"eval_held_out{'_' + args.tag if args.reuse else ''}")
+    write_eval_report(report, out / f"eval_held_out{'_' + args.tag if args.reuse else ''}")
     dope, refined = report["ADD-S"], report["refined"]["ADD-S"]
     row = {"tag": args.tag, "recipe": args.recipe, "frames": args.frames, "camera_fx": args.camera_fx,
            "generate": " ".join(args.generate), "train": " ".join(args.train),

@@ -26,8 +26,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from dope_training.targets import SIGMA_PX, make_targets
-from pegasus_gen.dataset.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 from pegasus_gen.io.files import read_json
 

@@ -29,16 +29,15 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import trimesh
 from tqdm import tqdm
 
 from dope_training.infer import DopeModel
-from pegasus_gen.dataset.bop import bop_frames
-from pegasus_gen.dataset.view import draw_instance
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import bop_frames, models_info, read_model, result_row
+from pegasus_gen.formats.drawing import draw_instance
 from pegasus_gen.geometry.pose_error import add_error, adds_error
 from pegasus_gen.io import images
-from pegasus_gen.io.files import read_json, write_atomic
+from pegasus_gen.io.files import write_atomic
 from pegasus_gen.io.plots import line_chart
 
 THRESHOLDS_M = (0.02, 0.05, 0.10)
@@ -63,13 +62,9 @@ def auc(errors: np.ndarray, max_threshold: float = AUC_MAX_M) -> float:
 
 
 def model_points(root: Path, obj_id: int) -> np.ndarray:
-    """[N, 3] metres: the vertices of the BOP evaluation model (models_eval, else models; mm), at most
+    """[N, 3] metres: the vertices of the BOP evaluation model (models_eval, else models), at most
     MAX_MODEL_POINTS (evenly strided)."""
-    path = next((p for p in (root / f / f"obj_{obj_id:06d}.ply" for f in ("models_eval", "models")) if p.is_file()),
-                root / "models" / f"obj_{obj_id:06d}.ply")
-    if not path.is_file():
-        raise PegasusError(f"{path}: the model of obj_id {obj_id} is missing")
-    vertices = np.asarray(trimesh.load(path, process=False).vertices, dtype=np.float64) / 1000.0
+    vertices = np.asarray(read_model(root, obj_id, evaluation=True).vertices, dtype=np.float64)
     return vertices[::max(1, len(vertices) // MAX_MODEL_POINTS)]
 
 
@@ -188,21 +183,22 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     estimate is also refined with the frame's depth image (``DopeModel.estimate``) and the report gains
     ``refined``: the same figures for the refined poses, where an estimate the refinement rejects counts
     as a miss (a robot would not act on it). ``frames`` lists per image its misses, false positives and
-    instances failing 0.1 d, for the gallery of the worst (``write_report``)."""
+    instances failing 0.1 d, for the gallery of the worst (``write_eval_report``)."""
     root = Path(root)
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder (choose --split)")
     obj = model.object
-    info = read_json(root / "models" / "models_info.json").get(str(obj.obj_id))
+    info = models_info(root).get(obj.obj_id)
     if info is None:
         raise PegasusError(f"{root}: models_info.json has no obj_id {obj.obj_id} (the model was trained for "
                            f"{obj.name!r})")
-    size = np.array([info["size_x"], info["size_y"], info["size_z"]]) / 1000.0
-    if not np.allclose(size, obj.bbox_size, atol=1e-3):
-        raise PegasusError(f"{root}: obj_id {obj.obj_id} is {np.round(size, 3).tolist()} m, the model's object "
-                           f"{obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
-    symmetric = bool(info.get("symmetries_discrete") or info.get("symmetries_continuous") or obj.symmetric)
-    diameter = float(info["diameter"]) / 1000.0
+    if not np.allclose(info.bbox_size, obj.bbox_size, atol=1e-3):
+        raise PegasusError(f"{root}: obj_id {obj.obj_id} is {np.round(info.bbox_size, 3).tolist()} m, the model's "
+                           f"object {obj.name!r} {np.round(obj.bbox_size, 3).tolist()} m: another object")
+    if info.diameter is None:
+        raise PegasusError(f"{root}: models_info.json gives obj_id {obj.obj_id} no diameter")
+    symmetric = info.symmetric or obj.symmetric
+    diameter = info.diameter
     points = model_points(root, obj.obj_id)
     matches, refined_errors, false_positives, rejected, results, frames = [], [], 0, 0, [], []
     for frame in tqdm(list(bop_frames(root / split, max_images)), desc="eval", unit="img"):
@@ -220,9 +216,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         for e in estimates:
             T = e.refined if refine else e.T
             if T is not None:
-                results.append({"scene_id": int(frame.scene.name), "im_id": frame.im_id, "obj_id": obj.obj_id,
-                                "score": float(e.score), "R": T[:3, :3].ravel().tolist(),
-                                "t": (T[:3, 3] * 1000.0).tolist(), "time": seconds})
+                results.append(result_row(int(frame.scene.name), frame.im_id, obj.obj_id, e.score, T, seconds))
         solved = [e for e in estimates if e.T is not None]  # DOPE + PnP alone
         pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in solved], frame.K, ignored)
         false_positives += extra
@@ -285,7 +279,7 @@ def score_threshold(report: dict, max_false_positives_per_image: float) -> float
     return float(scores.max(initial=report["min_score"])) + 1e-6
 
 
-def write_report(report: dict, out: str | Path) -> tuple[Path, Path, Path | None]:
+def write_eval_report(report: dict, out: str | Path) -> tuple[Path, Path, Path | None]:
     """``out``/eval.json, ``out``/eval_curve.png (pass rate against threshold for ADD and ADD-S, and with
     depth refinement when the report has it) and ``out``/eval_worst.png (``write_gallery``; None when no
     image has a miss, a false positive or a pose beyond 0.1 d)."""

@@ -10,7 +10,7 @@ import numpy as np
 
 from dope_training.checkpoint import TargetObject
 from dope_training.infer import DopeModel, ObjectPose
-from pegasus_gen.dataset.view import draw_instance
+from pegasus_gen.formats.drawing import draw_instance
 from pegasus_gen.io import images
 from pegasus_gen.io.files import write_atomic
 

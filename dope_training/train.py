@@ -48,8 +48,8 @@ from dope_training.model import (
     model_config,
 )
 from dope_training.train_config import TrainConfig
-from pegasus_gen.dataset.bop import model_boxes, object_names
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import model_boxes, object_names, read_model
 from pegasus_gen.io import images
 from pegasus_gen.io.files import link_atomic, read_json, write_atomic
 from pegasus_gen.io.lock import LOCK_FILE, FolderLock
@@ -63,15 +63,11 @@ SURFACE_SAMPLES = 500  # model surface points a checkpoint carries for depth ref
 
 
 def surface_samples(root: Path, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
-    """Points and unit normals [SURFACE_SAMPLES, 3] (metres, model frame) on the BOP model of ``obj_id``
-    (mm), area-uniform, the same for every run."""
-    path = root / "models" / f"obj_{obj_id:06d}.ply"
-    try:
-        mesh = trimesh.load(path, process=False, force="mesh")
-    except (OSError, ValueError) as exc:
-        raise PegasusError(f"{path}: cannot read the object's model ({exc})") from None
+    """Points and unit normals [SURFACE_SAMPLES, 3] (metres, model frame) on the BOP model of ``obj_id``,
+    area-uniform, the same for every run."""
+    mesh = read_model(root, obj_id)
     points, faces = trimesh.sample.sample_surface(mesh, SURFACE_SAMPLES, seed=0)
-    return points / 1000.0, mesh.face_normals[faces]
+    return points, mesh.face_normals[faces]
 
 
 def load_training_samples(cfg: TrainConfig):

@@ -4,22 +4,14 @@ pegasus launch launch/generate_train_deploy.launch.py object:=noodle_cup_red ima
 (ros2 launch works too where ROS 2 and this package are installed.)
 """
 
-try:
-    from launch.actions import DeclareLaunchArgument, Shutdown
-    from launch.substitutions import LaunchConfiguration
-    from launch_ros.actions import Node
-    from launch_ros.parameter_descriptions import ParameterValue
-
-    from launch import LaunchDescription
-except ImportError:
-    from nodes.launch import (
-        DeclareLaunchArgument,
-        LaunchConfiguration,
-        LaunchDescription,
-        Node,
-        ParameterValue,
-        Shutdown,
-    )
+from nodes.launch_api import (
+    DeclareLaunchArgument,
+    LaunchConfiguration,
+    LaunchDescription,
+    Node,
+    ParameterValue,
+    Shutdown,
+)
 
 
 def generate_launch_description():

@@ -3,40 +3,23 @@ controller) is the digital twin of a splat scene; a camera renders it from splat
 object's pose, the robot node picks through the real ur-rtde client, the evaluator counts.
 
 pegasus launch launch/sim_pick_place.launch.py model:=MODEL.onnx [attempts:=20 objects:=a,b ...]
-(or `pegasus sim-grasp`). The cell: the environment's table top is the world's z = 0; the robot's base
-stands on it at world (0.45, 0, 0), facing -x; objects appear in base x -0.55..-0.38, y -0.12..0.12; the
-basket stands at base (-0.25, -0.28); the camera looks down at the pick area from world (0, -0.35, 0.55)
-and renders depth too, against which the inference node refines DOPE's poses (``use_pose``). With
+(or `pegasus sim-grasp`). The cell's layout (base, camera, basket, pick area) is ``robot_bridge.cell.SIM_CELL``;
+the camera renders depth too, against which the inference node refines DOPE's poses (``use_pose``). With
 ``record:=NAME`` every topic goes into the rosbag2 bag NAME (MCAP).
 """
 
-import numpy as np
+from nodes.launch_api import (
+    DeclareLaunchArgument,
+    LaunchConfiguration,
+    LaunchConfigurationNotEquals,
+    LaunchDescription,
+    Node,
+    ParameterValue,
+    Shutdown,
+)
+from robot_bridge.cell import SIM_CELL
 
-from pegasus_gen.geometry.cameras import look_at
-
-try:
-    from launch.actions import DeclareLaunchArgument, Shutdown
-    from launch.conditions import LaunchConfigurationNotEquals
-    from launch.substitutions import LaunchConfiguration
-    from launch_ros.actions import Node
-    from launch_ros.parameter_descriptions import ParameterValue
-
-    from launch import LaunchDescription
-except ImportError:
-    from nodes.launch import (
-        DeclareLaunchArgument,
-        LaunchConfiguration,
-        LaunchConfigurationNotEquals,
-        LaunchDescription,
-        Node,
-        ParameterValue,
-        Shutdown,
-    )
-
-T_WORLD_BASE = np.array([[1.0, 0, 0, 0.45], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-T_WORLD_CAM = np.linalg.inv(look_at([0.0, -0.35, 0.55], [0.0, 0.0, 0.0]))
-T_BASE_CAM = np.linalg.inv(T_WORLD_BASE) @ T_WORLD_CAM
-BASKET = [-0.25, -0.28, 0.0]
+HAND_EYE = SIM_CELL.T_base_cam.ravel().tolist()
 
 
 def generate_launch_description():
@@ -60,20 +43,23 @@ def generate_launch_description():
                               description="rosbag2 bag (MCAP) of every topic to create; empty: no recording"),
         Node(package="pegasus", executable="sim_controller_node", on_exit=Shutdown(), parameters=[{
             "host": arg("host"), "time_scale": ParameterValue(arg("time_scale"), value_type=float),
-            "basket": BASKET}]),
+            "basket": list(SIM_CELL.basket)}]),
         Node(package="pegasus", executable="camera_node", parameters=[{
             "source": "sim", "host": arg("host"), "library": arg("library"), "environment": arg("environment"),
-            "T_world_base": T_WORLD_BASE.ravel().tolist(), "T_world_cam": T_WORLD_CAM.ravel().tolist(),
-            "width": 640, "height": 480, "rate": 2.0, "device": arg("device")}]),
+            "T_world_base": SIM_CELL.T_world_base.ravel().tolist(),
+            "T_world_cam": SIM_CELL.T_world_cam.ravel().tolist(),
+            "width": SIM_CELL.camera_size[0], "height": SIM_CELL.camera_size[1], "fx": SIM_CELL.camera_fx,
+            "rate": 2.0, "device": arg("device")}]),
         Node(package="pegasus", executable="inference_node", parameters=[{
             "model": arg("model"), "refine": True, "use_pose": arg("use_pose")}]),
         Node(package="pegasus", executable="robot_node", parameters=[{
-            "host": arg("host"), "hand_eye": T_BASE_CAM.ravel().tolist(), "basket": BASKET,
-            "wait_for_attempt": True, "speed": 0.3}]),
+            "host": arg("host"), "hand_eye": HAND_EYE, "basket": list(SIM_CELL.basket), "table_z": SIM_CELL.table_z,
+            "home": list(SIM_CELL.home), "wait_for_attempt": True, "speed": 0.3}]),
         Node(package="pegasus", executable="evaluator_node", on_exit=Shutdown(), parameters=[{
             "host": arg("host"), "library": arg("library"), "objects": ParameterValue(arg("objects"), value_type=str),
             "attempts": arg("attempts"),
-            "seed": arg("seed"), "hand_eye": T_BASE_CAM.ravel().tolist(), "report": arg("report"),
+            "seed": arg("seed"), "hand_eye": HAND_EYE, "spawn_x": list(SIM_CELL.spawn_x),
+            "spawn_y": list(SIM_CELL.spawn_y), "report": arg("report"),
             "pose_source": arg("pose_source")}]),
         Node(package="pegasus", executable="recorder_node", condition=LaunchConfigurationNotEquals("record", ""),
              parameters=[{"path": ParameterValue(arg("record"), value_type=str)}]),

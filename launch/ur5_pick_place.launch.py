@@ -10,23 +10,15 @@ write every number with a decimal point (1.0, not 1), as launch_ros reads them a
 
 import typing
 
-try:
-    from launch.actions import DeclareLaunchArgument, Shutdown
-    from launch.substitutions import LaunchConfiguration
-    from launch_ros.actions import Node
-    from launch_ros.parameter_descriptions import ParameterValue
-
-    from launch import LaunchDescription
-except ImportError:
-    from nodes.launch import (
-        DeclareLaunchArgument,
-        LaunchConfiguration,
-        LaunchDescription,
-        Node,
-        ParameterValue,
-        Shutdown,
-    )
-
+from nodes.launch_api import (
+    DeclareLaunchArgument,
+    LaunchConfiguration,
+    LaunchDescription,
+    Node,
+    ParameterValue,
+    Shutdown,
+)
+from robot_bridge.cell import SIM_CELL
 
 List = typing.List  # launch_ros's value_type for a list parameter
 
@@ -37,7 +29,7 @@ def generate_launch_description():
         DeclareLaunchArgument("host", description="the UR controller's address"),
         DeclareLaunchArgument("model", description="DOPE ONNX export"),
         DeclareLaunchArgument("hand_eye", description="T_base_cam, a YAML list of 16 floats, row-major"),
-        DeclareLaunchArgument("basket", default_value="[-0.25, -0.28, 0.0]",
+        DeclareLaunchArgument("basket", default_value=str(list(SIM_CELL.basket)),
                               description="basket floor centre, a YAML list of 3 floats (x, y, z)"),
         DeclareLaunchArgument("source", default_value="oak", choices=["oak", "folder"]),
         DeclareLaunchArgument("images", default_value="", description="image folder (source:=folder)"),

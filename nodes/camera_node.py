@@ -8,11 +8,11 @@ loop);
 ``fx fy cx cy`` (px; 0 = from the OAK's calibration or a 60 degree horizontal field of view); for ``sim``: ``host`` (the
 simulated controller), ``library``, ``environment``, ``T_world_base`` and ``T_world_cam`` (16 numbers each,
 row-major) — each frame renders the environment's splats and every object of the simulated cell at its
-current pose (asset name = the sim object's name up to '#'), with the splat renderer on ``device``;
+current pose (``robot_bridge.sim.twin_camera``), with the splat renderer on ``device``;
 ``rate`` (Hz); ``frame_id``; ``width``/``height`` (the sim's image size; an OAK's frames are ``width`` wide,
 16:9); ``depth`` (the OAK's stereo depth too). With ``sim`` it also broadcasts the static transform world ->
 base_link (T_world_base); robot_node adds base_link -> camera (its hand-eye). The OAK source
-(``nodes.oak``, depthai 2) publishes each new frame once, stamped with its exposure, with the device's
+(``nodes.oak_camera``, depthai 2) publishes each new frame once, stamped with its exposure, with the device's
 calibrated intrinsics and rational_polynomial distortion; it fails with a clear message when depthai is
 missing or no device is attached.
 
@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from nodes.conversions import IDENTITY, camera_info, matrix_to_transform, numpy_to_image
-from nodes.oak import OakCamera
+from nodes.oak_camera import OakCamera
 from nodes.ros import Node, StaticTransformBroadcaster, declare, finish, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
@@ -64,55 +64,6 @@ class FolderSource:
         return None
 
 
-class SimSource:
-    """Renders the simulated cell from splats: the environment plus each object at the pose the simulated
-    controller reports (its PyBullet state), so the image is the digital twin of the physics."""
-
-    finished, distortion, distortion_model = False, None, "plumb_bob"
-
-    def __init__(self, host: str, library: str, environment: str, T_world_base, T_world_cam, width: int,
-                 height: int, K: np.ndarray, device: str):
-        from pegasus_gen.assets.library import AssetLibrary
-        from robot_bridge.sim.client import dashboard_command, sim_object_pose
-
-        self.command = lambda text: dashboard_command(host, text)
-        self.object_pose = lambda name: sim_object_pose(host, name)
-        self.library = AssetLibrary(library or None)
-        self.environment = self.library.get(environment).splats.with_label(0)
-        self.T_world_base = np.array(T_world_base, dtype=np.float64).reshape(4, 4)
-        self.T_cam_world = np.linalg.inv(np.array(T_world_cam, dtype=np.float64).reshape(4, 4))
-        self.width, self.height, self.K, self.device = width, height, K, device
-        self.splats = {}
-
-    def object_poses(self) -> dict[str, np.ndarray]:
-        """{sim object name: T_world_obj}."""
-        poses = {}
-        for name in self.command("sim list").split():
-            try:
-                poses[name] = self.T_world_base @ self.object_pose(name)
-            except LookupError:  # removed (by the evaluator) since the listing
-                continue
-        return poses
-
-    def read(self) -> tuple[np.ndarray, np.ndarray, None]:
-        """The cell as the camera sees it: RGB [H, W, 3] uint8, depth [H, W] float32 metres (0 = none), no
-        stamp (rendered now)."""
-        from pegasus_gen.io.images import rgb_to_uint8
-        from pegasus_gen.render.renderer import render
-
-        parts = [self.environment]
-        for k, (name, T) in enumerate(self.object_poses().items()):
-            asset = name.split("#")[0]
-            if asset not in self.splats:
-                self.splats[asset] = self.library.get(asset).splats
-            parts.append(self.splats[asset].transformed(T).with_label(k + 1))
-        out = render(parts, self.K, self.T_cam_world, self.width, self.height, device=self.device)
-        return rgb_to_uint8(out.rgb), np.nan_to_num(out.depth, nan=0.0, posinf=0.0).astype(np.float32), None
-
-    def intrinsics(self, width: int, height: int):
-        return self.K
-
-
 PARAMETERS = (
     ("source", "folder"), ("folder", ""), ("loop", True), ("rate", 5.0), ("frame_id", "camera"),
     ("fx", 0.0), ("fy", 0.0), ("cx", 0.0), ("cy", 0.0), ("width", 640), ("height", 480),
@@ -139,7 +90,9 @@ class CameraNode(Node):
         self.params = p
         if p["source"] == "sim":
             w, h = int(p["width"]), int(p["height"])
-            self.source = SimSource(p["host"], p["library"], p["environment"], p["T_world_base"], p["T_world_cam"],
+            from robot_bridge.sim.twin_camera import TwinCamera
+
+            self.source = TwinCamera(p["host"], p["library"], p["environment"], p["T_world_base"], p["T_world_cam"],
                                     w, h, self.camera_matrix(w, h), p["device"])
         self.image_pub = self.create_publisher(msgs.Image, "image", 5)
         self.info_pub = self.create_publisher(msgs.CameraInfo, "camera_info", 5)

@@ -70,7 +70,7 @@ def camera_info(K: np.ndarray, width: int, height: int, header=None, distortion=
     return msg
 
 
-def matrix_to_pose(T: np.ndarray):
+def matrix_to_pose_msg(T: np.ndarray):
     """A geometry_msgs/Pose from T [4, 4] (metres)."""
     msg = msgs.Pose()
     x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
@@ -85,14 +85,14 @@ def matrix_to_transform(T: np.ndarray, parent: str, child: str, stamp=None):
     msg.header.frame_id, msg.child_frame_id = parent, child
     if stamp is not None:
         msg.header.stamp = stamp
-    pose = matrix_to_pose(T)
+    pose = matrix_to_pose_msg(T)
     msg.transform.translation.x, msg.transform.translation.y, msg.transform.translation.z = (
         pose.position.x, pose.position.y, pose.position.z)
     msg.transform.rotation = pose.orientation
     return msg
 
 
-def pose_to_matrix(pose) -> np.ndarray:
+def pose_msg_to_matrix(pose) -> np.ndarray:
     """T [4, 4] from a geometry_msgs/Pose; raises ValueError for a zero or non-finite quaternion."""
     T = np.eye(4)
     o = pose.orientation

@@ -27,12 +27,13 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nodes.conversions import IDENTITY, image_to_numpy, matrix_to_pose, pose_to_matrix
+from nodes.conversions import IDENTITY, image_to_numpy, matrix_to_pose_msg, pose_msg_to_matrix
 from nodes.ros import Node, declare, finish, latched, msgs, run_node
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
-from robot_bridge.attempts import Attempt, score_attempt, strip_image, summarise, write_report
-from robot_bridge.sim.client import dashboard_command, sim_object_pose
+from robot_bridge.attempts import Attempt, score_attempt, strip_image, summarise, write_attempts_report
+from robot_bridge.cell import SIM_CELL
+from robot_bridge.sim.client import SimCell, body_name
 
 REST_S = 0.3  # after the attempt's end, before asking whether the object is in the basket
 SPAWN_CLEARANCE_M = 0.003  # the spawned object's lowest point above the floor
@@ -40,7 +41,7 @@ SPAWN_CLEARANCE_M = 0.003  # the spawned object's lowest point above the floor
 
 PARAMETERS = (
     ("host", "127.0.0.1"), ("library", ""), ("objects", "noodle_cup_red"), ("attempts", 20), ("seed", 0),
-    ("spawn_x", [-0.55, -0.38]), ("spawn_y", [-0.12, 0.12]), ("settle_s", 1.0), ("timeout_s", 60.0),
+    ("spawn_x", list(SIM_CELL.spawn_x)), ("spawn_y", list(SIM_CELL.spawn_y)), ("settle_s", 1.0), ("timeout_s", 60.0),
     ("detect_timeout_s", 10.0),
     ("hand_eye", IDENTITY), ("pose_source", "dope"), ("report", "out/sim_grasp"))
 
@@ -56,6 +57,7 @@ class EvaluatorNode(Node):
         self.library = AssetLibrary(p["library"] or None)
         self.assets = [self.library.get(name) for name in p["objects"]]
         self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
+        self.cell = SimCell(p["host"])
         self.rng = np.random.default_rng(int(p["seed"]))
         self.attempt_pub = self.create_publisher(msgs.String, "attempt", latched())
         self.truth_pub = self.create_publisher(msgs.PoseStamped, "object_pose", 1)
@@ -72,25 +74,24 @@ class EvaluatorNode(Node):
         self.pending_status = self.end_status = None  # robot_status that ended the attempt (None: timed out)
         self.create_timer(0.1, self.tick)
 
-    def command(self, text: str) -> str:
-        return dashboard_command(self.params["host"], text)
-
     # -- attempt lifecycle (tick) ----------------------------------------------------------------------
     def spawn(self) -> None:
         p, index = self.params, len(self.records)
         asset = self.assets[index % len(self.assets)]
         x, y = self.rng.uniform(*p["spawn_x"]), self.rng.uniform(*p["spawn_y"])
-        q = Rotation.from_euler("z", self.rng.uniform(0, 2 * np.pi)).as_quat()
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("z", self.rng.uniform(0, 2 * np.pi)).as_matrix()
         lo, hi = asset.mesh.bounds
-        z, body = -lo[2] + SPAWN_CLEARANCE_M, f"{asset.name}#{index}"
-        self.command(f"sim add {body} {asset.urdf_path} {x} {y} {z} {q[0]} {q[1]} {q[2]} {q[3]}")
+        T[:3, 3] = x, y, -lo[2] + SPAWN_CLEARANCE_M
+        body = body_name(asset.name, index)
+        self.cell.add(body, asset.urdf_path, T)
         self.current = Attempt(index, asset.name, body, np.asarray(asset.mesh.vertices), lo, hi - lo)
         self.pending_status = None
         self.state, self.deadline = "settling", time.monotonic() + float(p["settle_s"])
 
     def announce(self) -> None:
         c = self.current
-        c.T_cam_obj = np.linalg.inv(self.T_base_cam) @ sim_object_pose(self.params["host"], c.body)
+        c.T_cam_obj = np.linalg.inv(self.T_base_cam) @ self.cell.pose(c.body)
         c.announced = time.monotonic()
         self.running_since_ns = self.get_clock().now().nanoseconds
         self.state = "running"
@@ -103,14 +104,14 @@ class EvaluatorNode(Node):
 
     def finish(self) -> None:
         c, status = self.current, self.end_status
-        in_basket = self.command(f"sim in_basket {c.body}") == "true"
+        in_basket = self.cell.in_basket(c.body)
         record = score_attempt(c, in_basket, status, time.monotonic() - c.announced)
         self.records.append(record)
         self.strips.append(strip_image(c, record, self.K))
-        self.command(f"sim remove {c.body}")
+        self.cell.remove(c.body)
         if status is not None and status["state"] == "failed":  # the cell's operator: arm home, stop cleared
-            self.command("sim home")
-            self.command("unlock protective stop")
+            self.cell.home()
+            self.cell.command("unlock protective stop")
         self.get_logger().info(f"evaluator_node: attempt {c.index + 1}: "
                                f"{'success' if in_basket else 'failure (' + record.cause + ')'}")
         self.state = "idle"
@@ -126,7 +127,7 @@ class EvaluatorNode(Node):
             return
         if self.state == "idle":
             if len(self.records) >= int(p["attempts"]):
-                write_report(p["report"], summarise(self.records, p["pose_source"]), self.strips)
+                write_attempts_report(p["report"], summarise(self.records, p["pose_source"]), self.strips)
                 self.state = "done"
                 finish(self)
             else:
@@ -147,7 +148,7 @@ class EvaluatorNode(Node):
         """The true pose in the camera frame, streamed like an estimator's (pose_source ground_truth)."""
         self.truth_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera",
                                                                    stamp=self.get_clock().now().to_msg()),
-                                                pose=matrix_to_pose(self.current.T_cam_obj)))
+                                                pose=matrix_to_pose_msg(self.current.T_cam_obj)))
 
     # -- subscriptions -----------------------------------------------------------------------------------
     def this_attempts(self, msg) -> bool:
@@ -158,7 +159,7 @@ class EvaluatorNode(Node):
 
     def on_pose(self, msg) -> None:
         if self.this_attempts(msg) and self.current.estimate is None:
-            self.current.estimate = pose_to_matrix(msg.pose)
+            self.current.estimate = pose_msg_to_matrix(msg.pose)
 
     def on_overlay(self, msg) -> None:
         if self.this_attempts(msg) and self.current.overlay is None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from dope_training.infer import DopeModel
 from dope_training.overlay import draw_poses
-from nodes.conversions import image_to_numpy, matrix_to_pose, matrix_to_transform, numpy_to_image
+from nodes.conversions import image_to_numpy, matrix_to_pose_msg, matrix_to_transform, numpy_to_image
 from nodes.ros import Node, TransformBroadcaster, declare, finish, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 
@@ -98,9 +98,9 @@ class InferenceNode(Node):
             transforms.append(matrix_to_transform(T, msg.header.frame_id, f"{obj.name}_{k}", msg.header.stamp))
             hypothesis = msgs.ObjectHypothesisWithPose()
             hypothesis.hypothesis.class_id, hypothesis.hypothesis.score = obj.name, pose.score
-            hypothesis.pose.pose = matrix_to_pose(T)
+            hypothesis.pose.pose = matrix_to_pose_msg(T)
             detection = msgs.Detection3D(header=msg.header, results=[hypothesis], id=obj.name)
-            detection.bbox.center = matrix_to_pose(T)
+            detection.bbox.center = matrix_to_pose_msg(T)
             detection.bbox.size.x, detection.bbox.size.y, detection.bbox.size.z = (float(v) for v in obj.bbox_size)
             array.detections.append(detection)
         self.detections_pub.publish(array)
@@ -110,7 +110,7 @@ class InferenceNode(Node):
         self.overlay_pub.publish(numpy_to_image(overlay, "rgb8", msg.header))
         best = {"raw": next((p.T for p in poses if p.T is not None), None),
                 "refined": next((p.refined for p in poses if p.refined is not None), None)}
-        stamped = {name: msgs.PoseStamped(header=msg.header, pose=matrix_to_pose(T))
+        stamped = {name: msgs.PoseStamped(header=msg.header, pose=matrix_to_pose_msg(T))
                    for name, T in best.items() if T is not None}
         for name, publisher in (("raw", self.raw_pub), ("refined", self.refined_pub)):
             if name in stamped:

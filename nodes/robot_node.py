@@ -2,46 +2,48 @@
 ur-rtde (a real robot or the simulated controller), one pick at a time.
 
 States: idle -> planning -> moving -> idle (or failed); each change is published on ``robot_status``
-(std_msgs/String, JSON: state, attempt, detail). While planning, before any command is sent (the move home
-included), the estimate is checked (``robot_bridge.plausibility``: the object resting on the table, in
-reach), the grasp is planned from the home joints' TCP pose (forward kinematics; the arm is not moved to
-get it) and the plan is checked (no fingertip in the table); a refusal sends nothing and ends the attempt
-as failed with the detail "implausible estimate: " and the reason. Only then the arm moves home and on.
+(std_msgs/String, JSON: state, attempt, detail). Each attempt is ``robot_bridge.pick.attempt_pick``: while
+planning, before any command is sent (the move home included), the estimate is checked
+(``robot_bridge.plausibility``: the object resting on the table, in reach), the grasp is planned from the home
+joints' TCP pose (forward kinematics; the arm is not moved to get it) and the plan is checked (no fingertip in
+the table); a refusal sends nothing and ends the attempt as failed with the detail "implausible estimate: "
+and the reason. Only then the arm moves home and on.
 Parameters (``PARAMETERS``, each typed by its default): ``host``; ``hand_eye`` (T_base_cam, 16 floats
-row-major); ``basket`` (floor centre x y z, base frame); ``table_z`` (the table top's height, m, base frame);
+row-major); ``basket`` (floor centre x y z, base frame), ``table_z`` (the table top's height, m, base frame)
+and ``home`` (joints, rad: each attempt starts there), by default the simulated cell's (``robot_bridge.cell``);
 ``bbox_min``/``bbox_size`` (the object's model box, m) and ``symmetry_axis`` (object frame; 0 0 0 for none);
-``execute`` = pick (the whole pick-and-place) or pregrasp (stop above the object); ``home`` (joints, rad: each
-attempt starts there); ``speed``; ``dry_run``; ``wait_for_attempt`` (act only once per message on ``attempt``,
-as evaluator_node sends them; the status carries that attempt's number). Poses arriving while it moves are
-ignored. ``results``: per attempt, picked, missed, pregrasp, implausible or failed. Broadcasts the static
-transform base_link -> ``camera_frame`` (the hand-eye). Parameters are checked where they enter (``check_parameters``):
-a NaN would switch a check off (e.g. ``table_z`` the envelope's table check).
+``execute`` = pick (the whole pick-and-place) or pregrasp (stop above the object); ``speed``; ``dry_run``;
+``wait_for_attempt`` (act only once per message on ``attempt``, as evaluator_node sends them; the status
+carries that attempt's number). Poses arriving while it moves are ignored. ``results``: per attempt, picked,
+missed, pregrasp, implausible or failed. Broadcasts the static transform base_link -> ``camera_frame`` (the
+hand-eye). Parameters are checked where they enter (``check_parameters``): a NaN would switch a check off (e.g.
+``table_z`` the envelope's table check).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 
 import numpy as np
 
-from nodes.conversions import IDENTITY, matrix_to_transform, pose_to_matrix
+from nodes.conversions import IDENTITY, matrix_to_transform, pose_msg_to_matrix
 from nodes.ros import Node, StaticTransformBroadcaster, declare, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
 from robot_bridge.attempts import IMPLAUSIBLE_DETAIL
 from robot_bridge.bridge import UR5, BridgeConfig
-from robot_bridge.grasp import plan_grasp
-from robot_bridge.kinematics import fk, joints_problem
-from robot_bridge.pick import pick_and_place
-from robot_bridge.plausibility import plan_problem, pose_problem
+from robot_bridge.cell import SIM_CELL
+from robot_bridge.kinematics import joints_problem
+from robot_bridge.pick import PickTarget, attempt_pick
 from robot_bridge.safety import SafetyEnvelope
 
 PARAMETERS = (
-    ("host", "127.0.0.1"), ("hand_eye", IDENTITY), ("basket", [-0.15, -0.45, 0.0]),
-    ("table_z", 0.0),
+    ("host", "127.0.0.1"), ("hand_eye", IDENTITY), ("basket", list(SIM_CELL.basket)),
+    ("table_z", SIM_CELL.table_z),
     ("bbox_min", [-0.047, -0.047, -0.0525]), ("bbox_size", [0.094, 0.094, 0.105]),
     ("symmetry_axis", [0.0, 0.0, 1.0]), ("execute", "pick"), ("speed", 0.25), ("dry_run", False),
-    ("wait_for_attempt", False), ("home", [0.0, -1.8, 1.8, -1.57, -1.57, 0.0]), ("camera_frame", "camera"))
+    ("wait_for_attempt", False), ("home", list(SIM_CELL.home)), ("camera_frame", "camera"))
 
 
 def check_parameters(p: dict) -> None:
@@ -69,6 +71,10 @@ class RobotNode(Node):
         self.T_base_cam = np.array(p["hand_eye"], dtype=np.float64).reshape(4, 4)
         p["table_z"] = float(p["table_z"])
         self.params = p
+        self.cell = dataclasses.replace(SIM_CELL, basket=tuple(p["basket"]), table_z=p["table_z"],
+                                        home=tuple(p["home"]))
+        self.target = PickTarget(tuple(p["bbox_min"]), tuple(p["bbox_size"]),
+                                 tuple(p["symmetry_axis"]) if any(p["symmetry_axis"]) else None)
         config = BridgeConfig(host=p["host"], speed=float(p["speed"]), dry_run=bool(p["dry_run"]),
                               envelope=SafetyEnvelope(table_z=p["table_z"]))
         config.envelope.check_motion(config.speed, config.acceleration)
@@ -81,7 +87,7 @@ class RobotNode(Node):
         self.create_subscription(msgs.String, "attempt", self.on_attempt, latched())
         self.armed = None  # the attempt number a pose may start (with wait_for_attempt)
         self.busy = threading.Lock()
-        self.attempts, self.last_plan, self.results = 0, None, []
+        self.attempts, self.results = 0, []
 
     def status(self, state: str, detail: str = "") -> None:
         self.status_pub.publish(msgs.String(data=json.dumps({"state": state, "attempt": self.attempts,
@@ -109,12 +115,6 @@ class RobotNode(Node):
             self.robot.disconnect()
             self.robot.connect()
 
-    def _home_tcp(self) -> np.ndarray:
-        """T_base_tcp [4, 4] at the home joints: the forward kinematics with the controller's TCP offset
-        (T_flange_tcp, read from where the arm is now), without moving there."""
-        T_flange_tcp = np.linalg.inv(fk(self.robot.joint_positions())) @ self.robot.tcp_pose()
-        return fk(self.params["home"], T_flange_tcp)
-
     def _refuse(self, reason: str) -> None:
         self.results.append("implausible")
         self.status("failed", IMPLAUSIBLE_DETAIL + reason)
@@ -122,36 +122,18 @@ class RobotNode(Node):
 
     def _pick(self, pose) -> None:
         """One attempt for the estimate ``pose`` (a Pose message, camera frame), on its own thread."""
-        p = self.params
         try:
             self.status("planning")
             try:
-                T_cam_obj = pose_to_matrix(pose)
+                T_cam_obj = pose_msg_to_matrix(pose)
             except ValueError:  # scipy: a zero-norm (or not finite) quaternion
                 return self._refuse("the pose's quaternion is not a rotation")
-            reason = pose_problem(self.T_base_cam @ T_cam_obj, p["bbox_min"], p["bbox_size"], p["table_z"],
-                                  envelope=self.robot.config.envelope)
-            if reason is not None:
-                return self._refuse(reason)
-            self._connect()
-            axis = p["symmetry_axis"] if any(p["symmetry_axis"]) else None
-            plan = plan_grasp(T_cam_obj, self.T_base_cam, p["bbox_min"], p["bbox_size"], p["basket"][:2],
-                              p["basket"][2] + 0.006, self._home_tcp(), axis=axis, table_z=p["table_z"],
-                              envelope=self.robot.config.envelope)
-            reason = plan_problem(plan, p["table_z"])
-            if reason is not None:
-                return self._refuse(reason)
-            self.last_plan = plan
-            self.status("moving")
-            self.robot.move_j(p["home"])
-            if p["execute"] == "pregrasp":
-                self.robot.move_l(plan.pre_grasp)
-                self.results.append("pregrasp")
-                self.status("idle", "at the pre-grasp")
-            else:
-                result = pick_and_place(self.robot, plan)
-                self.results.append("picked" if result.held is not False else "missed")
-                self.status("idle", result.reason or "placed")
+            outcome = attempt_pick(self.robot, T_cam_obj, self.T_base_cam, self.target, self.cell,
+                                   self.params["execute"], connect=self._connect, moving=lambda: self.status("moving"))
+            if outcome.result == "implausible":
+                return self._refuse(outcome.detail[len(IMPLAUSIBLE_DETAIL):])
+            self.results.append(outcome.result)
+            self.status("idle", outcome.detail)
         except PegasusError as exc:
             self.results.append("failed")
             self.status("failed", str(exc))

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 from nodes.ros import Node, declare, run_node
 from pegasus_gen.errors import PegasusError
+from robot_bridge.cell import SIM_CELL
 from robot_bridge.sim.process import SimControllerProcess
 
-PARAMETERS = (("host", "127.0.0.1"), ("time_scale", 1.0), ("basket", [-0.25, -0.28, 0.0]), ("log", ""))
+PARAMETERS = (("host", "127.0.0.1"), ("time_scale", 1.0), ("basket", list(SIM_CELL.basket)), ("log", ""))
 
 
 class SimControllerNode(Node):
@@ -19,10 +20,11 @@ class SimControllerNode(Node):
         host, time_scale, basket, log = p["host"], p["time_scale"], list(p["basket"]), p["log"]
         self.process = SimControllerProcess(host, log or None, time_scale=time_scale).start()
         if len(basket) == 3:
-            answer = self.process.command(f"sim basket {basket[0]} {basket[1]} {basket[2]}")
-            if answer != "basket added":
+            try:
+                self.process.cell.set_basket(basket)
+            except PegasusError as exc:
                 self.process.stop()
-                raise PegasusError(f"sim_controller_node: basket {basket}: {answer}")
+                raise PegasusError(f"sim_controller_node: basket {basket}: {exc}") from None
 
     def destroy_node(self) -> None:
         self.process.stop()

@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pegasus_gen.dataset.view import draw_instance
+from pegasus_gen.formats.drawing import draw_instance
 from pegasus_gen.geometry.pose_error import add_error, adds_error
 from pegasus_gen.io.files import write_atomic
 from pegasus_gen.io.images import write_image
@@ -164,7 +164,7 @@ def strip_mosaic(strips: list[np.ndarray]) -> np.ndarray:
                           axis=0)
 
 
-def write_report(out: str | Path, report: dict, strips: list[np.ndarray]) -> Path:
+def write_attempts_report(out: str | Path, report: dict, strips: list[np.ndarray]) -> Path:
     """``out``/report.json (``summarise``'s dict) and, with any attempt, ``out``/strip.png; returns ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

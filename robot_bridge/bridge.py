@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pegasus_gen.errors import PegasusError
-from robot_bridge.kinematics import matrix_to_pose, pose_to_matrix
+from robot_bridge.kinematics import matrix_to_rtde_pose, rtde_pose_to_matrix
 from robot_bridge.safety import SafetyEnvelope
 
 log = logging.getLogger(__name__)
@@ -110,7 +110,7 @@ class UR5:
     def tcp_pose(self) -> np.ndarray:
         """T_base_tcp [4, 4] as the controller reports it."""
         self._require()
-        return pose_to_matrix(self.receive.getActualTCPPose())
+        return rtde_pose_to_matrix(self.receive.getActualTCPPose())
 
     def joint_positions(self) -> np.ndarray:
         self._require()
@@ -137,7 +137,7 @@ class UR5:
         speed = c.speed if speed is None else speed
         acceleration = c.acceleration if acceleration is None else acceleration
         T_target = c.envelope.check_linear(self.tcp_pose(), target, speed, acceleration)
-        pose = matrix_to_pose(T_target).tolist()  # the pose checked (check_linear's is built from it)
+        pose = matrix_to_rtde_pose(T_target).tolist()  # the pose checked (check_linear's is built from it)
         if self._dry(f"moveL {np.round(pose, 4).tolist()} v={speed} a={acceleration}"):
             return
         self._run_async("moveL", lambda: self.control.moveL(pose, speed, acceleration, True),
@@ -163,7 +163,7 @@ class UR5:
         if self.control is None:
             return np.eye(4)
         try:
-            return pose_to_matrix(self.control.getTCPOffset())
+            return rtde_pose_to_matrix(self.control.getTCPOffset())
         except RuntimeError as exc:  # ur-rtde: e.g. after a protective stop, when the control script has ended
             raise RobotError(f"the controller did not answer for its TCP offset ({exc}); is the robot in a "
                              "protective stop or its program stopped?") from None

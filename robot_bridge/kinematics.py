@@ -137,7 +137,7 @@ def rtde_pose_problem(pose) -> str | None:
     return None
 
 
-def pose_to_matrix(pose) -> np.ndarray:
+def rtde_pose_to_matrix(pose) -> np.ndarray:
     """ur-rtde pose [x, y, z, rx, ry, rz] (m, rotation vector in rad) -> [4, 4]."""
     pose = np.asarray(pose, dtype=np.float64)
     T = np.eye(4)
@@ -146,7 +146,7 @@ def pose_to_matrix(pose) -> np.ndarray:
     return T
 
 
-def matrix_to_pose(T: np.ndarray) -> np.ndarray:
+def matrix_to_rtde_pose(T: np.ndarray) -> np.ndarray:
     """[4, 4] -> ur-rtde pose [x, y, z, rx, ry, rz]; the rotation vector's angle lies in [0, pi] as the
     controller reports it."""
     return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()])

@@ -20,7 +20,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from pegasus_gen.errors import PegasusError
-from robot_bridge.kinematics import JOINT_LIMIT, fk, joints_problem, matrix_to_pose, pose_to_matrix, rtde_pose_problem
+from robot_bridge.kinematics import (
+    JOINT_LIMIT,
+    fk,
+    joints_problem,
+    matrix_to_rtde_pose,
+    rtde_pose_problem,
+    rtde_pose_to_matrix,
+)
 
 
 class UnsafeCommand(PegasusError):
@@ -91,7 +98,7 @@ class SafetyEnvelope:
             problem = rtde_pose_problem(T)
             if problem is not None:
                 raise UnsafeCommand(f"{what} refused: {problem}")
-            return pose_to_matrix(T)
+            return rtde_pose_to_matrix(T)
         if not np.isfinite(T).all():
             raise UnsafeCommand(f"{what} refused: it holds a NaN or infinite number")
         R = T[:3, :3]
@@ -99,7 +106,7 @@ class SafetyEnvelope:
                 or not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0])):
             raise UnsafeCommand(f"{what} refused: not a rigid transform (its rotation is scaled, sheared or "
                                 "mirrored)")
-        return pose_to_matrix(matrix_to_pose(T))
+        return rtde_pose_to_matrix(matrix_to_rtde_pose(T))
 
     def check_pose(self, pose, what: str = "target") -> np.ndarray:
         """The pose sent for ``pose`` (``sent_pose``) [4, 4]; UnsafeCommand naming every problem it has."""

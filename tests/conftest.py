@@ -38,7 +38,7 @@ def rng():
 @pytest.fixture(scope="session")
 def library(tmp_path_factory):
     """The built-in demo library (8 objects, 3 environments), built once per test session; tests only read it."""
-    from pegasus_gen.assets.demo import build_demo_library
+    from pegasus_gen.assets.demo_library import build_demo_library
     from pegasus_gen.assets.library import AssetLibrary
 
     lib = AssetLibrary(tmp_path_factory.mktemp("lib"))
@@ -97,7 +97,7 @@ def ros_implementation(name: str):
             QoSProfile=compat.QoSProfile, ReliabilityPolicy=compat.ReliabilityPolicy,
             DurabilityPolicy=compat.DurabilityPolicy, exceptions=compat, RCLError=compat.RCLError,
             init=compat.init, message=msgs.message_class, Trigger=msgs.Trigger, serialize=msgs.serialize,
-            deserialize=msgs.deserialize, other_context=lambda: compat.Context(graph=compat._default),
+            deserialize=msgs.deserialize, other_context=lambda: compat.Context(graph=compat.context._default),
             settle=0.0)
     rclpy = pytest.importorskip("rclpy", reason="real rclpy comes with the ros extra (pip install '.[ros]')")
     from rcl_interfaces.msg import ParameterDescriptor, ParameterValue

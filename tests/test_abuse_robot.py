@@ -21,7 +21,7 @@ from nodes import compat
 from nodes.compat import Parameter
 from nodes.ros import REAL_ROS
 from pegasus_gen.errors import PegasusError
-from robot_bridge.kinematics import JOINT_LIMIT, fk, pose_to_matrix
+from robot_bridge.kinematics import JOINT_LIMIT, fk, rtde_pose_to_matrix
 from robot_bridge.sim.client import DASHBOARD_PORT, dashboard_command
 from robot_bridge.sim.controller import SimController
 from robot_bridge.sim.dashboard import MAX_LINE
@@ -82,11 +82,11 @@ def test_the_simulator_refuses_what_a_ur_would_refuse_and_never_answers_done(con
 
         q = control.getInverseKinematics(pose, [100.0, -1.8, 1.8, -1.57, -1.57, 0.0])
         assert np.abs(q).max() <= JOINT_LIMIT
-        np.testing.assert_allclose(fk(q, pose_to_matrix(tcp)), pose_to_matrix(pose), atol=1e-9)
+        np.testing.assert_allclose(fk(q, rtde_pose_to_matrix(tcp)), rtde_pose_to_matrix(pose), atol=1e-9)
 
         near_limit = HOME_Q + [0, 0, 0, 0, 0, 6.0]
         assert control.moveJ(near_limit.tolist(), 1.0, 2.0)
-        turned = pose_to_matrix(receive.getActualTCPPose())
+        turned = rtde_pose_to_matrix(receive.getActualTCPPose())
         turned[:3, :3] = turned[:3, :3] @ Rotation.from_euler("z", 0.5).as_matrix()  # wrist 3 to 6.5 rad
         assert not control.moveL([*turned[:3, 3], *Rotation.from_matrix(turned[:3, :3]).as_rotvec()], 0.1, 0.5)
         assert wait_for(receive.isProtectiveStopped)  # the state stream arrives apart from the call's answer

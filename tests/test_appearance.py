@@ -164,7 +164,7 @@ def generate_dataset(library, out, *options):
 
 
 def test_a_light_on_the_objects_shades_only_the_objects_and_leaves_the_other_draws_alone(library, tmp_path):
-    from pegasus_gen.dataset.generate import scene_looks
+    from pegasus_gen.dataset.scene import scene_looks
 
     options = ["scenes=1", "frames_per_scene=2", "appearance.enabled=true", "shadows.enabled=false"]
     cfg_dark, cfg_lit = (config(library, tmp_path / n, *options, f"appearance.object_light={v}")

@@ -10,16 +10,6 @@ import trimesh
 from plyfile import PlyData
 
 from pegasus_gen.assets.library import ContinuousSymmetry
-from pegasus_gen.dataset.bop import (
-    CanvasWindow,
-    camera_entry,
-    depth_to_png_values,
-    gt_info_entry,
-    pose_entry,
-    read_bop_results,
-    targets_bop19,
-    write_bop_results,
-)
 from pegasus_gen.dataset.models import (
     EVAL_SPACING,
     cached_eval_model,
@@ -30,6 +20,16 @@ from pegasus_gen.dataset.models import (
     write_model_ply,
 )
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import (
+    CanvasWindow,
+    camera_entry,
+    depth_to_png_values,
+    gt_info_entry,
+    pose_entry,
+    read_bop_results,
+    targets_bop19,
+    write_bop_results,
+)
 from pegasus_gen.render.raycast import MeshRaycaster
 
 

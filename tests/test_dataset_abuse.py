@@ -152,9 +152,9 @@ def test_view_says_which_files_are_missing(library, tmp_path, caplog):
 def test_a_full_disk_is_one_line_and_leaves_no_scene_that_looks_complete(library, tmp_path, capsys, monkeypatch):
     import errno
 
-    from pegasus_gen.dataset import generate as generate_module
+    from pegasus_gen.dataset import scene as scene_module
 
-    real, calls = generate_module.write_image, []
+    real, calls = scene_module.write_image, []
 
     def write_image(path, *a, **k):
         calls.append(path)
@@ -162,7 +162,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_scene_that_looks_complete(library
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
         return real(path, *a, **k)
 
-    monkeypatch.setattr(generate_module, "write_image", write_image)
+    monkeypatch.setattr(scene_module, "write_image", write_image)
     assert main(["generate", *args(library.root, tmp_path / "ds", "frames_per_scene=2")]) == 2
     assert "No space left on device" in one_line_error(capsys)
     split = tmp_path / "ds" / "train_pbr"

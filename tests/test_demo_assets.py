@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.renderer import render
 from pegasus_gen.render.silhouette import mesh_silhouette

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nodes.demo import CELL_CAMERA_FX, DemoSettings, held_out_overrides, stage_times, write_html
+from nodes.demo_loop import CELL_CAMERA_FX, DemoSettings, held_out_overrides, stage_times, write_html
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.geometry.cameras import intrinsics_from_fov
 

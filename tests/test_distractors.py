@@ -8,7 +8,8 @@ from test_generate import config
 
 from pegasus_gen.dataset.config import DistractorConfig
 from pegasus_gen.dataset.distractors import make_distractor
-from pegasus_gen.dataset.generate import camera_matrix, generate, load_assets, plan_scene
+from pegasus_gen.dataset.generate import generate
+from pegasus_gen.dataset.scene import camera_matrix, load_assets, plan_scene
 from pegasus_gen.dataset.validate import validate
 
 

@@ -26,8 +26,8 @@ from dope_training.evaluate import (
     recall,
     score_threshold,
     summary,
+    write_eval_report,
     write_gallery,
-    write_report,
 )
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, on_centroid_ray
@@ -63,7 +63,7 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     report = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9)
     assert report["instances"] >= 4 and report["metric"] == "ADD"
     assert all(m["add_m"] is not None and m["add_m"] < 0.02 for m in report["per_instance"]), report["per_instance"]
-    json_path, png, _ = write_report(report, tmp_path / "eval")
+    json_path, png, _ = write_eval_report(report, tmp_path / "eval")
     assert json.loads(json_path.read_text())["ADD"]["pass_2cm"] == 1.0 and cv2.imread(str(png)) is not None
     refined = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9, refine=True)
     assert refined["result"] == report["result"] and refined["refined"]["ADD"]["pass_2cm"] == 1.0, refined["refined"]
@@ -293,7 +293,7 @@ def test_a_centroid_pnp_cannot_solve_is_kept_when_depth_confirms_it(dope_dataset
     # Corners that did not join their centroid (or put the object behind the camera) leave PnP without a
     # pose; with depth, the refinement from the centroid's ray still finds the object, and nothing else
     import dope_training.infer
-    from pegasus_gen.dataset.bop import bop_frames
+    from pegasus_gen.formats.bop import bop_frames
 
     model = DopeModel(overfit_dope / "last.pt")
     frame = next(iter(bop_frames(dope_dataset / "train_pbr")))

@@ -154,7 +154,7 @@ def world_poses(scene_dir):
 
 
 def test_dynamic_scene_gt_follows_the_physics_of_each_frame(library, tmp_path):
-    from pegasus_gen.dataset.generate import frame_poses, load_assets, plan_scene
+    from pegasus_gen.dataset.scene import frame_poses, load_assets, plan_scene
 
     cfg = config(library, tmp_path / "dyn", "scenes=1", "frames_per_scene=6", "dynamic=true", "fps=20")
     out = generate(cfg)
@@ -170,23 +170,23 @@ def test_dynamic_scene_gt_follows_the_physics_of_each_frame(library, tmp_path):
 def test_a_scene_whose_targets_all_fell_off_is_dropped_again_and_then_refused(library, tmp_path, monkeypatch):
     import dataclasses
 
-    from pegasus_gen.dataset import generate as gen
+    from pegasus_gen.dataset import scene
 
     cfg = config(library, tmp_path / "x", "scenes=1", "frames_per_scene=1")
-    real_drop, calls = gen.drop_objects, []
+    real_drop, calls = scene.drop_objects, []
 
     def drop(*args, **kwargs):  # the real drop; its first result as if every object had fallen off
         result = real_drop(*args, **kwargs)
         calls.append(result)
         return dataclasses.replace(result, poses={}, removed=sorted(result.poses)) if len(calls) == 1 else result
 
-    monkeypatch.setattr(gen, "drop_objects", drop)
-    plan = gen.plan_scene(0, cfg, gen.load_assets(cfg))
+    monkeypatch.setattr(scene, "drop_objects", drop)
+    plan = scene.plan_scene(0, cfg, scene.load_assets(cfg))
     assert len(calls) == 2 and plan.drop is calls[1] and plan.labelled(sorted(plan.drop.poses))
     assert not np.allclose(calls[0].poses[0], calls[1].poses[0])  # dropped again from new spawn poses
-    monkeypatch.setattr(gen, "drop_objects", lambda *a, **k: dataclasses.replace(real_drop(*a, **k), poses={}))
-    with pytest.raises(PegasusError, match=f"in {gen.DROP_ATTEMPTS} drops"):
-        gen.generate(config(library, tmp_path / "y", "scenes=1", "frames_per_scene=1"))
+    monkeypatch.setattr(scene, "drop_objects", lambda *a, **k: dataclasses.replace(real_drop(*a, **k), poses={}))
+    with pytest.raises(PegasusError, match=f"in {scene.DROP_ATTEMPTS} drops"):
+        generate(config(library, tmp_path / "y", "scenes=1", "frames_per_scene=1"))
 
 
 def test_static_scene_keeps_the_rest_poses_in_every_frame(library, tmp_path):
@@ -199,7 +199,7 @@ def test_static_scene_keeps_the_rest_poses_in_every_frame(library, tmp_path):
 
 @pytest.mark.parametrize("offset", [[0.0, 0.0, 0.0], [0.35, 0.1, 0.0], [0.0, -0.3, 0.2]])
 def test_windowed_object_canvas_equals_the_full_canvas(library, offset):
-    from pegasus_gen.dataset.generate import object_depth_window
+    from pegasus_gen.dataset.scene import object_depth_window
     from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
     from pegasus_gen.render.raycast import MeshRaycaster
 

@@ -8,14 +8,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from robot_bridge.bridge import UR5, BridgeConfig, GripperConfig
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.kinematics import fk
 from robot_bridge.pick import pick_and_place
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
-from robot_bridge.sim.client import sim_object_pose
 from robot_bridge.sim.process import SimControllerProcess
 from robot_bridge.sim.world import HOME_Q
 
@@ -87,21 +86,24 @@ def test_twenty_cup_picks_with_the_real_client_land_in_the_basket(cup_urdf):
     T_base_cam = camera_above()
     landed = 0
     with SimControllerProcess(host, time_scale=4.0) as sim:
-        assert sim.command(f"sim basket {BASKET[0]} {BASKET[1]} {BASKET[2]}") == "basket added"
+        cell = sim.cell
+        cell.set_basket(BASKET)
         config = BridgeConfig(host=host, speed=0.4, acceleration=1.5, gripper=GripperConfig(settle_s=0.2))
         with UR5(config) as robot:
             for attempt in range(20):
                 x, y, yaw = rng.uniform(-0.55, -0.35), rng.uniform(-0.15, 0.15), rng.uniform(0, 2 * np.pi)
-                q = Rotation.from_euler("z", yaw).as_quat()
-                sim.command(f"sim add cup {cup_urdf} {x} {y} {-CUP_MIN[2] + 0.002} {q[0]} {q[1]} {q[2]} {q[3]}")
+                T = np.eye(4)
+                T[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
+                T[:3, 3] = x, y, -CUP_MIN[2] + 0.002
+                cell.add("cup", cup_urdf, T)
                 time.sleep(0.15)  # settles (at 4x)
                 # what pose estimation would report
-                T_cam_obj = np.linalg.inv(T_base_cam) @ sim_object_pose(host, "cup")
+                T_cam_obj = np.linalg.inv(T_base_cam) @ cell.pose("cup")
                 plan = plan_grasp(T_cam_obj, T_base_cam, CUP_MIN, CUP_SIZE, BASKET[:2], 0.006, robot.tcp_pose(),
                                   axis=[0, 0, 1], envelope=config.envelope)
                 result = pick_and_place(robot, plan)
                 time.sleep(0.1)
-                landed += sim.command("sim in_basket cup") == "true" and bool(result.held)
-                sim.command("sim remove cup")
+                landed += cell.in_basket("cup") and bool(result.held)
+                cell.remove("cup")
     print(f"picks in the basket: {landed} of 20")
     assert landed >= 19, landed

@@ -12,10 +12,10 @@ import pytest
 from dope_training.export import export_checkpoint
 from nodes import compat
 from nodes.compat import Parameter
-from nodes.conversions import numpy_to_image, pose_to_matrix
+from nodes.conversions import numpy_to_image, pose_msg_to_matrix
 from nodes.inference_node import InferenceNode
 from nodes.ros import REAL_ROS, Node, msgs
-from pegasus_gen.dataset.bop import bop_frames
+from pegasus_gen.formats.bop import bop_frames
 
 pytestmark = pytest.mark.skipif(REAL_ROS, reason="runs the nodes on the stand-in layer")
 TOPICS = ("object_pose", "object_pose_raw", "object_pose_refined")
@@ -66,9 +66,9 @@ def test_inference_node_publishes_raw_and_refined_poses(dope_dataset, overfit_do
 
     got = run_inference(onnx_path, frame, frame.read_depth(), "refined")
     assert set(got) == set(TOPICS)
-    refined = pose_to_matrix(got["object_pose_refined"].pose)
+    refined = pose_msg_to_matrix(got["object_pose_refined"].pose)
     assert np.linalg.norm(truths - refined[:3, 3], axis=1).min() < 0.005
-    np.testing.assert_allclose(pose_to_matrix(got["object_pose"].pose), refined, atol=1e-9)
+    np.testing.assert_allclose(pose_msg_to_matrix(got["object_pose"].pose), refined, atol=1e-9)
 
     got = run_inference(onnx_path, frame, np.zeros_like(frame.read_depth()), "refined")  # no depth support
     assert set(got) == {"object_pose_raw"}  # DOPE's pose is reported, the robot gets nothing

@@ -6,7 +6,7 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from robot_bridge.kinematics import A, D, fk, ik, matrix_to_pose, nearest_ik, pose_to_matrix
+from robot_bridge.kinematics import A, D, fk, ik, matrix_to_rtde_pose, nearest_ik, rtde_pose_to_matrix
 
 
 def poe(q) -> np.ndarray:
@@ -69,9 +69,9 @@ def test_pose_vectors_round_trip_like_ur_rtde():
         T = np.eye(4)
         T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
         T[:3, 3] = rng.uniform(-1, 1, 3)
-        pose = matrix_to_pose(T)
+        pose = matrix_to_rtde_pose(T)
         assert np.linalg.norm(pose[3:]) <= np.pi + 1e-12
-        np.testing.assert_allclose(pose_to_matrix(pose), T, atol=1e-12)
+        np.testing.assert_allclose(rtde_pose_to_matrix(pose), T, atol=1e-12)
     # a tool pointing straight down (the usual grasp pose): rotation of pi about x
-    np.testing.assert_allclose(pose_to_matrix([0.1, -0.4, 0.3, np.pi, 0, 0])[:3, 2], [0, 0, -1], atol=1e-12)
-    assert matrix_to_pose(np.eye(4)) == pytest.approx(np.zeros(6))
+    np.testing.assert_allclose(rtde_pose_to_matrix([0.1, -0.4, 0.3, np.pi, 0, 0])[:3, 2], [0, 0, -1], atol=1e-12)
+    assert matrix_to_rtde_pose(np.eye(4)) == pytest.approx(np.zeros(6))

@@ -7,13 +7,14 @@ import ast
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("pegasus_gen", "dope_training", "robot_bridge", "nodes")
 # inside pegasus_gen: a subpackage imports only subpackages of a lower rank (equal ranks do not import each other)
-PEGASUS_RANKS = {"errors": 0, "__init__": 0, "io": 1, "geometry": 1, "splats": 2, "render": 3, "assets": 4,
-                 "dataset": 5, "scan": 5, "cli": 6}
+PEGASUS_RANKS = {"errors": 0, "__init__": 0, "io": 1, "geometry": 1, "splats": 2, "formats": 2, "render": 3,
+                 "assets": 4, "dataset": 5, "scan": 5, "cli": 6}
 # across packages: nodes -> robot_bridge | dope_training -> pegasus_gen
 PACKAGE_RANKS = {"pegasus_gen": 0, "dope_training": 1, "robot_bridge": 1, "nodes": 2}
 
@@ -113,11 +114,18 @@ def test_the_rule_refuses_imports_against_the_grain(importer, imported):
     ("pegasus_gen.render.renderer", "pegasus_gen.splats.cloud"),
     ("pegasus_gen.cli.dope", "dope_training.train"),
     ("nodes.robot_node", "robot_bridge.bridge"),
-    ("dope_training.data", "pegasus_gen.dataset.bop"),
-    ("pegasus_gen.scan.capture", "pegasus_gen.assets.demo"),
+    ("dope_training.data", "pegasus_gen.formats.bop"),
+    ("pegasus_gen.scan.capture", "pegasus_gen.assets.demo_library"),
 ])
 def test_the_rule_allows_imports_down(importer, imported):
     assert layer_violation(importer, imported) is None
+
+
+def test_the_network_and_the_robot_read_datasets_through_formats_not_the_generator():
+    problems = [f"{a} imports {b}" for a, targets in import_graph().items()
+                if a.split(".")[0] in ("dope_training", "robot_bridge") for b in sorted(targets)
+                if b.startswith("pegasus_gen.dataset")]
+    assert not problems, "\n".join(problems)
 
 
 def test_cycle_finder_finds_a_cycle():
@@ -149,3 +157,60 @@ def test_no_module_is_named_for_how_instead_of_what():
     vague = {"utils", "helpers", "misc", "common"}
     assert not [n for n in project_modules() if n.rpartition(".")[2] in vague]
 
+
+
+def source_files() -> list[Path]:
+    """The product's Python files: the four packages, the launch files and the benchmarks."""
+    return [*project_modules().values(), *sorted((ROOT / "launch").glob("*.py")),
+            *sorted((ROOT / "benchmarks").glob("*.py"))]
+
+
+def test_no_module_is_longer_than_a_screenful_of_screens():
+    long = [f"{p.relative_to(ROOT)}: {n} lines" for p in project_modules().values()
+            if (n := len(p.read_text().splitlines())) > 450]
+    assert not long, long
+
+
+def test_only_the_simulator_speaks_its_dashboard_sim_commands():
+    speakers = [f"{p.relative_to(ROOT)}:{node.lineno}" for p in source_files()
+                if p.parent.name != "sim" or p.parent.parent.name != "robot_bridge"
+                for node in ast.walk(ast.parse(p.read_text()))
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.startswith("sim ")]
+    assert not speakers, speakers
+
+
+def test_the_cells_numbers_are_written_once():
+    from robot_bridge.cell import SIM_CELL
+
+    layout = [SIM_CELL.base_in_world, SIM_CELL.camera_eye, SIM_CELL.basket, SIM_CELL.spawn_x, SIM_CELL.spawn_y,
+              SIM_CELL.home]
+
+    def numbers(node):
+        """The numbers of a literal list or tuple of numbers (negative ones too), else None."""
+        values = []
+        for e in node.elts:
+            if isinstance(e, ast.UnaryOp) and isinstance(e.op, ast.USub) and isinstance(e.operand, ast.Constant):
+                values.append(-e.operand.value)
+            elif isinstance(e, ast.Constant) and isinstance(e.value, (int, float)) and not isinstance(e.value, bool):
+                values.append(e.value)
+            else:
+                return None
+        return values
+
+    copies = [f"{p.relative_to(ROOT)}:{node.lineno}" for p in source_files() if p != ROOT / "robot_bridge" / "cell.py"
+              for node in ast.walk(ast.parse(p.read_text())) if isinstance(node, (ast.List, ast.Tuple))
+              and (values := numbers(node)) and any(len(values) == len(v) and np.allclose(values, v) for v in layout)]
+    assert not copies, copies
+
+
+def test_module_names_are_not_shared_by_unrelated_modules():
+    """A name names one thing: only __main__, command-line ``options`` and the `pegasus` command groups of
+    pegasus_gen.cli (named for what they drive) repeat."""
+    seen: dict[str, list[str]] = {}
+    for name in project_modules():
+        parts = name.split(".")
+        if name in PACKAGES or parts[:2] == ["pegasus_gen", "cli"] or parts[-1] in ("__main__", "options"):
+            continue
+        seen.setdefault(parts[-1], []).append(name)
+    shared = {k: v for k, v in seen.items() if len(v) > 1}
+    assert not shared, shared

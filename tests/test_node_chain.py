@@ -21,6 +21,7 @@ from nodes.robot_node import RobotNode
 from nodes.ros import REAL_ROS, latched, msgs
 from pegasus_gen.geometry.cuboid import cuboid_points
 from robot_bridge.bridge import UR5, BridgeConfig
+from robot_bridge.cell import BASKET_CLEARANCE_M, SIM_CELL
 from robot_bridge.grasp import plan_grasp
 from robot_bridge.kinematics import fk
 from robot_bridge.sim.process import SimControllerProcess
@@ -64,8 +65,8 @@ def test_camera_inference_robot_chain_sends_the_robot_to_the_pregrasp(dope_datas
     T_base_cam = T_base_world @ T_world_cam
     tcp = np.eye(4)
     tcp[2, 3] = TCP_Z
-    expected = plan_grasp(estimate, T_base_cam, model.object.bbox_min, model.object.bbox_size, [-0.15, -0.45],
-                          0.006, fk(HOME_Q, tcp), axis=[0, 0, 1]).pre_grasp
+    expected = plan_grasp(estimate, T_base_cam, model.object.bbox_min, model.object.bbox_size, SIM_CELL.basket[:2],
+                          BASKET_CLEARANCE_M, fk(HOME_Q, tcp), axis=[0, 0, 1]).pre_grasp
 
     host = f"127.0.{os.getpid() % 200 + 20}.201"
     with SimControllerProcess(host, time_scale=2.0):

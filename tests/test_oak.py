@@ -8,7 +8,7 @@ import depthai as dai
 import numpy as np
 import pytest
 
-from nodes.oak import (
+from nodes.oak_camera import (
     STREAM,
     build_pipeline,
     calibration_intrinsics,

@@ -16,10 +16,10 @@ from scipy.spatial.transform import Rotation
 
 from nodes import compat
 from nodes.compat import Parameter
-from nodes.conversions import matrix_to_pose
+from nodes.conversions import matrix_to_pose_msg
 from nodes.ros import REAL_ROS, msgs
-from pegasus_gen.geometry.cameras import look_at
 from robot_bridge.attempts import FailureCause, failure_cause
+from robot_bridge.cell import SIM_CELL
 from robot_bridge.grasp import GraspParams, plan_grasp
 from robot_bridge.kinematics import fk
 from robot_bridge.plausibility import PlausibilityParams, plan_problem, pose_problem
@@ -28,7 +28,7 @@ from robot_bridge.sim.world import HOME_Q
 
 CUP_MIN, CUP_SIZE = np.array([-0.047, -0.047, -0.0525]), np.array([0.094, 0.094, 0.105])
 BASKET = np.array([-0.15, -0.45, 0.0])
-T_BASE_CAM = np.linalg.inv(look_at([-0.45, -0.35, 0.55], [-0.45, 0.0, 0.0]))  # the sim cell's camera, base frame
+T_BASE_CAM = SIM_CELL.T_base_cam  # the sim cell's camera, base frame
 DRAWS = 100
 
 
@@ -190,7 +190,7 @@ def test_robot_node_sends_nothing_for_an_implausible_estimate_and_moves_for_a_pl
             executor.add_node(probe)
 
             def send(T_base_obj):
-                pose_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera"), pose=matrix_to_pose(
+                pose_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera"), pose=matrix_to_pose_msg(
                     np.linalg.inv(T_BASE_CAM) @ T_base_obj)))
 
             q0 = np.array(receive.getActualQ())

@@ -9,7 +9,7 @@ import pytest
 from conftest import spin_until
 from scipy.spatial.transform import Rotation
 
-from nodes.conversions import image_to_numpy, matrix_to_pose, numpy_to_image, pose_to_matrix
+from nodes.conversions import image_to_numpy, matrix_to_pose_msg, numpy_to_image, pose_msg_to_matrix
 from nodes.ros import msgs
 
 
@@ -115,7 +115,7 @@ def test_image_and_pose_conversions_round_trip():
     T = np.eye(4)
     T[:3, :3] = Rotation.random(random_state=1).as_matrix()
     T[:3, 3] = [0.1, -0.2, 0.7]
-    np.testing.assert_allclose(pose_to_matrix(matrix_to_pose(T)), T, atol=1e-12)
+    np.testing.assert_allclose(pose_msg_to_matrix(matrix_to_pose_msg(T)), T, atol=1e-12)
 
 
 def test_parameters_are_statically_typed_as_in_rclpy(ros):

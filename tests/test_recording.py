@@ -9,7 +9,7 @@ from rosbags.rosbag2 import Reader
 
 from nodes.bag import bag_directory
 from nodes.compat import QoSProfile, ReliabilityPolicy
-from nodes.conversions import matrix_to_pose, numpy_to_image
+from nodes.conversions import matrix_to_pose_msg, numpy_to_image
 from nodes.recorder_node import RecorderNode
 from nodes.ros import REAL_ROS, Node, Parameter, SingleThreadedExecutor, latched, msgs, rclpy
 from pegasus_gen.errors import PegasusError
@@ -37,7 +37,7 @@ def test_the_recorder_writes_every_topic_with_its_type_and_qos(tmp_path):
             images.publish(numpy_to_image(np.full((2, 3, 3), k, np.uint8), "rgb8", header))
             T = np.eye(4)
             T[:3, 3] = [0.1 * k, 0.0, 0.5]
-            poses.publish(msgs.PoseStamped(header=header, pose=matrix_to_pose(T)))
+            poses.publish(msgs.PoseStamped(header=header, pose=matrix_to_pose_msg(T)))
             detections.publish(msgs.Detection3DArray(header=header, detections=[msgs.Detection3D(id=f"cup_{k}")]))
             for _ in range(3):
                 executor.spin_once(0.02)

@@ -12,7 +12,7 @@ from conftest import ros_implementation
 from rosbags.typesys import Stores, get_typestore
 
 from nodes import msgs
-from nodes.conversions import camera_info, image_to_numpy, matrix_to_pose, numpy_to_image
+from nodes.conversions import camera_info, image_to_numpy, matrix_to_pose_msg, numpy_to_image
 from nodes.ros import REAL_ROS
 
 HUMBLE = get_typestore(Stores.ROS2_HUMBLE)
@@ -196,7 +196,7 @@ def test_cdr_bytes_round_trip_and_match_an_independent_serialisation():
     np.testing.assert_array_equal(back.p.reshape(3, 4)[:, :3], np.array(info.k).reshape(3, 3))
     assert back.distortion_model == "plumb_bob" and back.header.frame_id == "camera"
 
-    stamped = msgs.PoseStamped(header=header, pose=matrix_to_pose(np.eye(4)))
+    stamped = msgs.PoseStamped(header=header, pose=matrix_to_pose_msg(np.eye(4)))
     assert msgs.deserialize(msgs.serialize(stamped), stamped.TYPE_NAME) == stamped
     detections = msgs.Detection3DArray(header=header, detections=[msgs.Detection3D(id="cup_0")])
     assert msgs.deserialize(msgs.serialize(detections), detections.TYPE_NAME).detections[0].id == "cup_0"

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pegasus_gen.errors import PegasusError
-from robot_bridge.kinematics import fk, matrix_to_pose
+from robot_bridge.kinematics import fk, matrix_to_rtde_pose
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
 
 TOOL_DOWN = np.array([0.0, -1.8, 1.8, -1.57, -1.57, 0.0])  # TCP at (-0.39, -0.11, 0.42), tool pointing down
@@ -15,7 +15,7 @@ def test_each_limit_refuses_with_its_reason():
     env = SafetyEnvelope(x=(-0.6, 0.6), y=(-0.6, 0.6), z=(-0.1, 0.8), table_z=0.02, min_height=0.01)
     home = fk(TOOL_DOWN)
     env.check_pose(home)
-    env.check_pose(matrix_to_pose(home))
+    env.check_pose(matrix_to_rtde_pose(home))
     cases = {"x = 0.700": [0.7, 0, 0.3], "y = -0.650": [0.1, -0.65, 0.3], "above the table top": [0.1, 0.1, 0.025]}
     for reason, xyz in cases.items():
         T = home.copy()

@@ -13,14 +13,8 @@ from pegasus_gen.assets.library import AssetLibrary, load_asset
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.scan.capture import write_capture
-from pegasus_gen.scan.pipeline import (
-    ScanOptions,
-    camera_in_frame,
-    fit_similarity,
-    run_scan,
-    similarity_matrix,
-    training_image,
-)
+from pegasus_gen.scan.frame import camera_in_frame, fit_similarity, similarity_matrix
+from pegasus_gen.scan.pipeline import ScanOptions, run_scan, training_image
 
 VIEWS = 60
 PSNR_HELD_OUT_DB = 26.0  # stated bar for the CPU "cpu-small" training at 96 px (measured ~31 dB)

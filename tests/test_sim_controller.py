@@ -15,7 +15,7 @@ import rtde_receive
 from scipy.spatial.transform import Rotation
 
 from robot_bridge.bridge import UR5, BridgeConfig, RobotConnectionError, RobotError
-from robot_bridge.kinematics import fk, matrix_to_pose, pose_to_matrix
+from robot_bridge.kinematics import fk, matrix_to_rtde_pose, rtde_pose_to_matrix
 from robot_bridge.safety import SafetyEnvelope, UnsafeCommand
 from robot_bridge.sim.process import SimControllerProcess
 from robot_bridge.sim.world import HOME_Q
@@ -43,15 +43,15 @@ def test_ur_rtde_client_reads_state_moves_and_sets_io(controller):
         np.testing.assert_allclose(receive.getActualQ(), HOME_Q, atol=1e-9)
         tcp = np.eye(4)
         tcp[2, 3] = TCP_Z
-        np.testing.assert_allclose(pose_to_matrix(receive.getActualTCPPose()), fk(HOME_Q, tcp), atol=1e-9)
+        np.testing.assert_allclose(rtde_pose_to_matrix(receive.getActualTCPPose()), fk(HOME_Q, tcp), atol=1e-9)
         assert control.isProgramRunning() and receive.getRobotMode() == 7 and receive.getSafetyMode() == 1
         np.testing.assert_allclose(control.getTCPOffset(), [0, 0, TCP_Z, 0, 0, 0], atol=1e-12)
 
-        target = pose_to_matrix(receive.getActualTCPPose())
+        target = rtde_pose_to_matrix(receive.getActualTCPPose())
         target[:3, 3] += [0.08, 0.05, -0.1]
         target[:3, :3] = Rotation.from_euler("z", 30, degrees=True).as_matrix() @ target[:3, :3]
         assert control.moveL(np.r_[target[:3, 3], Rotation.from_matrix(target[:3, :3]).as_rotvec()].tolist(), 0.3, 1.2)
-        reached = pose_to_matrix(receive.getActualTCPPose())
+        reached = rtde_pose_to_matrix(receive.getActualTCPPose())
         assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) < 1e-3 and angle_deg(reached, target) < 0.5
 
         q = HOME_Q + [0.3, 0.1, -0.2, 0.2, 0.1, -0.4]
@@ -197,17 +197,17 @@ def test_the_controller_never_answers_done_to_what_it_did_not_do(controller):
     control = rtde_control.RTDEControlInterface(host)
     try:
         pose = receive.getActualTCPPose()
-        target = pose_to_matrix(pose)
+        target = rtde_pose_to_matrix(pose)
         target[:3, 3] += [0.05, -0.03, 0.04]
         target[:3, :3] = Rotation.from_euler("y", 20, degrees=True).as_matrix() @ target[:3, :3]
-        tcp = pose_to_matrix(control.getTCPOffset())
-        for q in (control.getInverseKinematics(list(matrix_to_pose(target))),
-                  control.getInverseKinematics(list(matrix_to_pose(target)), list(HOME_Q))):
+        tcp = rtde_pose_to_matrix(control.getTCPOffset())
+        for q in (control.getInverseKinematics(list(matrix_to_rtde_pose(target))),
+                  control.getInverseKinematics(list(matrix_to_rtde_pose(target)), list(HOME_Q))):
             reached = fk(np.array(q), tcp)
             assert np.abs(reached[:3, 3] - target[:3, 3]).max() < 1e-6 and angle_deg(reached, target) < 1e-6
         with pytest.raises(RuntimeError, match="already in use"):
             rtde_control.RTDEControlInterface(host)
-        assert control.moveL(list(matrix_to_pose(target)), 0.2, 1.0)  # the first client still drives the arm
+        assert control.moveL(list(matrix_to_rtde_pose(target)), 0.2, 1.0)  # the first client still drives the arm
         np.testing.assert_allclose(receive.getActualTCPPose()[:3], target[:3, 3], atol=1e-3)
 
         def speed_j(c):  # a realtime command: accepted at once, it fails when the program meets it
@@ -232,3 +232,32 @@ def test_the_controller_never_answers_done_to_what_it_did_not_do(controller):
     log = "\n".join(controller.log_lines())
     assert "refused: getInverseKinematics" in log and "refused: moveL [nan" in log
     assert "refused: speedJ is not supported" in log and "input_int_register_0 (IN_USE)" in log
+
+
+def test_the_sim_cell_client_sets_up_queries_and_refuses_through_the_dashboard(controller, tmp_path):
+    from pegasus_gen.errors import PegasusError
+    from robot_bridge.sim.client import body_asset, body_name
+
+    urdf = tmp_path / "box.urdf"
+    urdf.write_text('<robot name="box"><link name="b"><inertial><mass value="0.1"/><inertia ixx="1e-4" iyy="1e-4" '
+                    'izz="1e-4" ixy="0" ixz="0" iyz="0"/></inertial><collision><geometry><box size="0.04 0.04 0.04"/>'
+                    '</geometry></collision></link></robot>')
+    cell = controller.cell
+    cell.set_basket((-0.25, -0.28, 0.0))
+    name = body_name("box", 3)
+    assert body_asset(name) == "box"
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", 0.4).as_matrix()
+    T[:3, 3] = -0.45, 0.05, 0.0205
+    cell.add(name, urdf, T)
+    assert cell.names() == [name]
+    np.testing.assert_allclose(cell.pose(name), T, atol=2e-3)  # at rest where it was put
+    assert cell.in_basket(name) is False
+    cell.remove(name)
+    assert cell.names() == []
+    with pytest.raises(LookupError):
+        cell.pose(name)
+    with pytest.raises(PegasusError, match="sim add"):
+        cell.add("x", tmp_path / "missing.urdf", T)
+    with pytest.raises(PegasusError, match="sim basket"):
+        cell.set_basket((np.nan, 0, 0))

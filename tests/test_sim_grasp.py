@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 from bag_reader import read_bag
 
-from pegasus_gen.assets.demo import build_demo_library
+from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.cli.main import main
 

@@ -10,11 +10,11 @@ from conftest import random_cloud
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render import differentiable as rasterizer_torch
 from pegasus_gen.render.renderer import render
+from pegasus_gen.scan.densify import densify_and_prune
+from pegasus_gen.scan.splat_params import SplatParams
 from pegasus_gen.scan.training import (
-    SplatParams,
     SplatTrainConfig,
     TrainView,
-    densify_and_prune,
     init_from_points,
     psnr,
     ssim,

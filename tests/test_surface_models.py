@@ -5,7 +5,7 @@ import trimesh
 from PIL import Image
 from scipy.spatial import cKDTree
 
-from pegasus_gen.assets.demo import CUPS, frustum_surface
+from pegasus_gen.assets.demo_library import CUPS, frustum_surface
 from pegasus_gen.assets.importers import import_cloud, import_mesh
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.assets.surface import MAX_EDGE, mesh_surface

@@ -11,7 +11,7 @@ from dope_training.evaluate import evaluate
 from dope_training.infer import DopeModel
 from dope_training.train import TrainConfig, train
 from dope_training.train_config import parse_options
-from nodes.demo import DemoSettings, held_out_overrides
+from nodes.demo_loop import DemoSettings, held_out_overrides
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 

@@ -23,7 +23,7 @@ def cmd_list(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from pegasus_gen.assets.demo import build_demo_library
+    from pegasus_gen.assets.demo_library import build_demo_library
 
     lib = options.library(args)
     names = build_demo_library(lib, seed=args.seed, force=args.force)

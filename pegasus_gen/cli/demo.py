@@ -12,7 +12,7 @@ from pegasus_gen.cli import options
 
 def cmd_demo(args) -> int:
     """Built-in demo: the demo objects standing on the demo wooden table, rendered with colour, depth and labels."""
-    from pegasus_gen.assets.demo import build_demo_library
+    from pegasus_gen.assets.demo_library import build_demo_library
     from pegasus_gen.assets.library import AssetLibrary
     from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
     from pegasus_gen.render.renderer import render
@@ -48,7 +48,7 @@ def cmd_demo(args) -> int:
 
 
 def cmd_demo_loop(args) -> int:
-    from nodes.demo import DemoSettings, run_demo
+    from nodes.demo_loop import DemoSettings, run_demo
 
     t0 = time.perf_counter()
     settings = DemoSettings.full() if args.full else DemoSettings.small()

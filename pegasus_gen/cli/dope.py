@@ -82,10 +82,9 @@ def _read_image(path) -> np.ndarray:
 
 
 def cmd_infer(args) -> int:
-    import cv2
-
     from dope_training.infer import DopeModel
     from dope_training.overlay import write_poses
+    from pegasus_gen.formats.bop import read_depth_png
 
     options.output_folder(args.out)
     _check_camera(args)
@@ -94,11 +93,10 @@ def cmd_infer(args) -> int:
     K = _read_K(args, image.shape[1], image.shape[0])
     depth = None
     if args.depth is not None:
-        values = cv2.imread(str(args.depth), cv2.IMREAD_UNCHANGED)
-        if values is None or values.shape != image.shape[:2]:
-            raise PegasusError(f"{args.depth}: not a single-channel depth image of the image's size "
-                               f"{image.shape[1]}x{image.shape[0]}")
-        depth = values.astype(np.float64) * args.depth_scale / 1000.0
+        depth = read_depth_png(args.depth, args.depth_scale)
+        if depth.shape != image.shape[:2]:
+            raise PegasusError(f"{args.depth}: a {depth.shape[1]}x{depth.shape[0]} depth image for a "
+                               f"{image.shape[1]}x{image.shape[0]} image")
     t0 = time.perf_counter()
     poses = model.estimate(image, K, min_score=args.min_score, depth_m=depth)
     ms = 1000 * (time.perf_counter() - t0)
@@ -117,9 +115,9 @@ def cmd_infer(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from dope_training.evaluate import describe_found, evaluate, write_report
+    from dope_training.evaluate import describe_found, evaluate, write_eval_report
     from dope_training.infer import DopeModel
-    from pegasus_gen.dataset.bop import write_bop_results
+    from pegasus_gen.formats.bop import write_bop_results
 
     out = args.out if args.out is not None else Path(args.model).parent / f"eval_{Path(args.data).name}_{args.split}"
     options.output_folder(out)
@@ -128,7 +126,7 @@ def cmd_eval(args) -> int:
     model = DopeModel(args.model, device=args.device)
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
                       min_score=args.min_score, refine=args.depth)
-    json_path, png, gallery = write_report(report, out)
+    json_path, png, gallery = write_eval_report(report, out)
     if args.bop_results:
         path = write_bop_results(args.bop_results, report["estimates"])
         print(f"BOP19 results ({len(report['estimates'])} estimates): {path}")

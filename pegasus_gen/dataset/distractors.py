@@ -17,7 +17,7 @@ import trimesh
 from pegasus_gen.dataset.config import DistractorConfig
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.procedural import random_texture
-from pegasus_gen.splats.surface import surface_splats
+from pegasus_gen.splats.surface_splats import surface_splats
 
 SPACING = 0.004  # m between neighbouring splats
 TEXTURE_PERIOD = (0.008, 0.04)  # m

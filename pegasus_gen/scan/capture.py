@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from pegasus_gen.assets import demo as demo_assets
+from pegasus_gen.assets import demo_library as demo_assets
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import look_at
 from pegasus_gen.io.images import rgb_to_uint8, write_image

@@ -24,15 +24,21 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import open3d as o3d
 
-from pegasus_gen.assets.importers import import_cloud, support_plane_alignment
+from pegasus_gen.assets.importers import import_cloud
 from pegasus_gen.assets.library import Asset, AssetLibrary, check_new_asset
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.images import rgb_to_uint8, write_image
 from pegasus_gen.io.plots import line_chart
 from pegasus_gen.scan import markers as scan_markers
 from pegasus_gen.scan import sfm
+from pegasus_gen.scan.frame import (
+    align_to_support_plane,
+    camera_in_frame,
+    fit_similarity,
+    object_crop,
+    similarity_matrix,
+)
 from pegasus_gen.scan.options import ScanOptions
 from pegasus_gen.scan.report import ScanReport, ScanTimings
 from pegasus_gen.splats.cloud import SplatCloud
@@ -41,10 +47,6 @@ from pegasus_gen.splats.ply import write_ply
 logger = logging.getLogger(__name__)
 
 MIN_REGISTERED_FRACTION = 0.5  # below this the photos are too unrelated to trust the reconstruction
-OBJECT_MIN_HEIGHT = 0.004  # m: SfM points this far above the support plane are candidates for the object
-OBJECT_CLUSTER_EPS = 0.02  # m: DBSCAN neighbourhood joining object points into one cluster
-OBJECT_MARGIN = 0.01  # m added around the object's extent when cropping the trained splats
-CROP_MIN_HEIGHT = 0.002  # m: trained splats below this height belong to the support plane
 WORK_FILES = ("sfm", "halves", "sfm_halves", "splats_aligned.ply", "scan_report.json", "training_loss.png",
               "preview.png")  # what a scan writes in its work folder
 
@@ -125,63 +127,6 @@ def training_image(path: Path, K: np.ndarray, dist: np.ndarray, size: int, inter
     return image.astype(np.float32) / (65535.0 if image.dtype == np.uint16 else 255.0), K_new
 
 
-def similarity_matrix(scale: float, T: np.ndarray) -> np.ndarray:
-    """[4, 4] x -> T (scale x) for a rigid T [4, 4]."""
-    S = np.array(T, dtype=np.float64)
-    S[:3, :3] = S[:3, :3] * scale
-    return S
-
-
-def camera_in_frame(T_cam_rec: np.ndarray, S_frame_rec: np.ndarray) -> np.ndarray:
-    """T_cam_frame [4, 4] of a camera given in the reconstruction frame, for the frame reached by the
-    similarity S_frame_rec (x_frame = s R x_rec + t). The camera's own frame is scaled by s with the scene,
-    which leaves its images unchanged."""
-    s = np.cbrt(np.linalg.det(S_frame_rec[:3, :3]))
-    R, t = S_frame_rec[:3, :3] / s, S_frame_rec[:3, 3]
-    T = np.eye(4)
-    T[:3, :3] = T_cam_rec[:3, :3] @ R.T
-    T[:3, 3] = s * T_cam_rec[:3, 3] - T[:3, :3] @ t
-    return T
-
-
-def align_to_support_plane(points: np.ndarray, camera_centres: np.ndarray, kind: str,
-                           rng: np.random.Generator) -> tuple[np.ndarray, dict]:
-    """Rigid T [4, 4] taking metric points [N, 3] to the asset frame: support plane (RANSAC) at z = 0 with
-    the cameras [M, 3] above it; an object's point cluster above the plane centred over the origin.
-    Returns (T, report: plane inliers, normal in the input frame, object extent)."""
-    T, on_plane = support_plane_alignment(points, rng)
-    centres = camera_centres @ T[:3, :3].T + T[:3, 3]
-    if np.median(centres[:, 2]) < 0:  # photos are taken from above the support: flip about x
-        T = np.diag([1.0, -1.0, -1.0, 1.0]) @ T
-    report = {"plane_inliers": int(on_plane.sum()), "points": len(points),
-              "plane_normal_input_frame": (T[2, :3]).tolist()}
-    if kind == "object":
-        aligned = points @ T[:3, :3].T + T[:3, 3]
-        above = aligned[aligned[:, 2] > OBJECT_MIN_HEIGHT]
-        if len(above) < 10:
-            raise PegasusError(f"only {len(above)} reconstructed points stand above the support plane: no "
-                               "object found on it (is the object textured and in most photos?)")
-        labels = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(above)).cluster_dbscan(
-            eps=OBJECT_CLUSTER_EPS, min_points=5))
-        if labels.max() < 0:
-            raise PegasusError("the points above the support plane form no cluster: no object found on it")
-        cluster = above[labels == np.bincount(labels[labels >= 0]).argmax()]
-        centre = np.median(cluster[:, :2], axis=0)
-        T[:2, 3] -= centre
-        radius = float(np.percentile(np.linalg.norm(cluster[:, :2] - centre, axis=1), 98))
-        report.update(object_points=len(cluster), object_radius=radius,
-                      object_height=float(np.percentile(cluster[:, 2], 99)))
-    return T, report
-
-
-def object_crop(points: np.ndarray, radius: float, height: float) -> np.ndarray:
-    """[N] bool: which points [N, 3] (asset frame) belong to the object standing at the origin: above the
-    support plane, inside the cylinder of the object's extent plus a margin."""
-    r = np.linalg.norm(points[:, :2], axis=1)
-    return (points[:, 2] > CROP_MIN_HEIGHT) & (points[:, 2] < height + 2 * OBJECT_MARGIN) & \
-        (r < radius + OBJECT_MARGIN)
-
-
 def _preview(path: Path, cloud: SplatCloud, views, device: str, count: int = 4, size: int = 320) -> None:
     """Held-out photos (top) above renders of the trained splats from the same cameras (bottom), each
     shown with its longest side ``size`` pixels."""
@@ -199,20 +144,6 @@ def _preview(path: Path, cloud: SplatCloud, views, device: str, count: int = 4, 
         columns.append(np.concatenate([photo, rgb_to_uint8(out.rgb)], axis=0))
     if columns:
         write_image(path, np.concatenate(columns, axis=1))
-
-
-def fit_similarity(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Least-squares similarity S [4, 4] with dst ~ S src (Umeyama) for corresponding points [N, 3], N >= 3."""
-    ms, md = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - ms, dst - md
-    U, D, Vt = np.linalg.svd(b.T @ a / len(src))
-    flip = np.diag([1.0, 1.0, -1.0 if np.linalg.det(U) * np.linalg.det(Vt) < 0 else 1.0])
-    R = U @ flip @ Vt
-    c = float(np.trace(np.diag(D) @ flip) / a.var(axis=0).sum())
-    S = np.eye(4)
-    S[:3, :3] = c * R
-    S[:3, 3] = md - c * R @ ms
-    return S
 
 
 def _link(source: Path, target: Path) -> None:

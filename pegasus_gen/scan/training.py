@@ -27,6 +27,8 @@ from tqdm import tqdm
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.render import differentiable as rasterizer_torch
+from pegasus_gen.scan.densify import DensityControl
+from pegasus_gen.scan.splat_params import SplatParams
 from pegasus_gen.splats import sh as shlib
 from pegasus_gen.splats.cloud import SplatCloud, is_rigid
 
@@ -211,138 +213,6 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5)
     return s.mean()
 
 
-# ----------------------------------------------------------------------- parameters + Adam
-PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
-
-
-class SplatParams:
-    """The trainable tensors of a cloud and their Adam optimiser; densification edits both together.
-
-    Tensors (N rows): means [N, 3] m, quats_wxyz [N, 4], log_scales [N, 3], opacity_logits [N],
-    sh_dc [N, 1, 3], sh_rest [N, K-1, 3]. Learning rates: ``lrs`` maps each name to its rate.
-    """
-
-    def __init__(self, cloud: SplatCloud, lrs: dict, device: str | torch.device = "cpu"):
-        arrays = {"means": cloud.means, "quats_wxyz": cloud.quats_wxyz, "log_scales": cloud.log_scales,
-                  "opacity_logits": cloud.opacity_logits, "sh_dc": cloud.sh[:, :1], "sh_rest": cloud.sh[:, 1:]}
-        self.params = {name: torch.nn.Parameter(torch.tensor(arrays[name], dtype=torch.float32, device=device))
-                       for name in PARAM_NAMES}
-        self.optimizer = torch.optim.Adam(
-            [{"params": [self.params[name]], "lr": lrs[name], "name": name} for name in PARAM_NAMES],
-            eps=1e-15)
-
-    def __len__(self) -> int:
-        return self.params["means"].shape[0]
-
-    def __getitem__(self, name: str) -> torch.nn.Parameter:
-        return self.params[name]
-
-    def sh(self) -> torch.Tensor:
-        """[N, K, 3] all SH coefficients."""
-        return torch.cat([self.params["sh_dc"], self.params["sh_rest"]], dim=1)
-
-    def set_lr(self, name: str, lr: float) -> None:
-        for group in self.optimizer.param_groups:
-            if group["name"] == name:
-                group["lr"] = lr
-
-    def _swap(self, name: str, values: torch.Tensor, edit_state) -> None:
-        """Replace parameter ``name`` by ``values``; edit_state(moment tensor) -> new moment tensor."""
-        old = self.params[name]
-        new = torch.nn.Parameter(values.detach().contiguous())
-        state = self.optimizer.state.pop(old, None)
-        for group in self.optimizer.param_groups:
-            if group["name"] == name:
-                group["params"] = [new]
-        if state:
-            self.optimizer.state[new] = {key: edit_state(v) if key in ("exp_avg", "exp_avg_sq") else v
-                                         for key, v in state.items()}
-        self.params[name] = new
-
-    @torch.no_grad()
-    def keep(self, mask: torch.Tensor) -> None:
-        """Keep the rows where ``mask`` [N] bool is True (optimiser moments kept with them)."""
-        for name in PARAM_NAMES:
-            self._swap(name, self.params[name][mask], lambda m: m[mask])
-
-    @torch.no_grad()
-    def append(self, rows: dict) -> None:
-        """Append rows (dict of PARAM_NAMES -> tensors with M rows); their optimiser moments start at zero."""
-        for name in PARAM_NAMES:
-            extra = rows[name].to(self.params[name])
-            self._swap(name, torch.cat([self.params[name], extra]),
-                       lambda m, extra=extra: torch.cat([m, torch.zeros_like(extra)]))
-
-    @torch.no_grad()
-    def reset_opacity(self, value: float) -> None:
-        """Clamp opacities to at most ``value`` and zero the opacity moments (INRIA's opacity reset)."""
-        logit = math.log(value / (1 - value))
-        self._swap("opacity_logits", self.params["opacity_logits"].clamp_max(logit), torch.zeros_like)
-
-    def to_cloud(self) -> SplatCloud:
-        """The current splats as a numpy SplatCloud (labels 0)."""
-        p = {name: t.detach().cpu().numpy() for name, t in self.params.items()}
-        return SplatCloud(means=p["means"], quats_wxyz=p["quats_wxyz"], log_scales=p["log_scales"],
-                          opacity_logits=p["opacity_logits"], sh=np.concatenate([p["sh_dc"], p["sh_rest"]], 1),
-                          labels=np.zeros(len(p["means"]), np.int32))
-
-
-@torch.no_grad()
-def densify_and_prune(params: SplatParams, grad2d: torch.Tensor, *, grad_threshold: float, split_scale: float,
-                      min_opacity: float, max_scale: float | None = None, split_divisor: float = 1.6,
-                      max_splats: int | None = None, generator: torch.Generator | None = None) -> dict:
-    """Adaptive density control, in place on ``params``.
-
-    grad2d [N]: average view-space gradient norm of each splat's 2D mean (NDC units). Splats with
-    grad2d >= grad_threshold grow: those with largest std-dev <= split_scale (m) are cloned (an exact copy),
-    larger ones are split into 2 splats drawn from their own Gaussian with std-devs / split_divisor (the
-    original is removed). With ``max_splats`` only the highest-gradient candidates grow, within the budget.
-    Then splats with opacity < min_opacity, or largest std-dev > max_scale (m, when given), are pruned.
-    Returns counts {"cloned", "split", "pruned", "before", "after"}.
-    """
-    n = len(params)
-    if grad2d.shape != (n,):
-        raise ValueError(f"grad2d must have shape ({n},), got {tuple(grad2d.shape)}")
-    largest = torch.exp(params["log_scales"]).max(dim=1).values
-    grow = grad2d >= grad_threshold
-    if max_splats is not None:
-        budget = max(max_splats - n, 0)  # each clone or split adds one splat
-        if int(grow.sum()) > budget:
-            top = torch.topk(torch.where(grow, grad2d, torch.full_like(grad2d, -1.0)), budget).indices
-            grow = torch.zeros_like(grow)
-            grow[top] = True
-    clone = grow & (largest <= split_scale)
-    split = grow & (largest > split_scale)
-    rows = {name: [] for name in PARAM_NAMES}
-    if clone.any():
-        for name in PARAM_NAMES:
-            rows[name].append(params[name][clone])
-    if split.any():
-        idx = torch.nonzero(split).squeeze(1).repeat(2)
-        scales = torch.exp(params["log_scales"][idx])
-        noise = torch.randn(scales.shape, generator=generator, device="cpu").to(scales)
-        R = rasterizer_torch.quat_to_rotmat(params["quats_wxyz"][idx])
-        for name in PARAM_NAMES:
-            rows[name].append(params[name][idx])
-        rows["means"][-1] = params["means"][idx] + (R @ (scales * noise)[:, :, None])[:, :, 0]
-        rows["log_scales"][-1] = params["log_scales"][idx] - math.log(split_divisor)
-    n_clone, n_split = int(clone.sum()), int(split.sum())
-    if n_clone or n_split:
-        params.append({name: torch.cat(parts) for name, parts in rows.items()})
-    added = len(params) - n
-    removed_split = torch.cat([split, torch.zeros(added, dtype=torch.bool, device=split.device)])
-    opacity = torch.sigmoid(params["opacity_logits"])
-    prune = opacity < min_opacity
-    if max_scale is not None:
-        prune |= torch.exp(params["log_scales"]).max(dim=1).values > max_scale
-    n_pruned = int((prune & ~removed_split).sum())
-    keep = ~(prune | removed_split)
-    if not bool(keep.all()):
-        params.keep(keep)
-    return {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "before": n, "after": len(params)}
-
-
-# ---------------------------------------------------------------------------------- training
 def _resolve_device_backend(device: str, backend: str) -> tuple[str, str]:
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
@@ -431,8 +301,7 @@ def train_splats(init: SplatCloud, train_views: Sequence[TrainView], test_views:
     rng = np.random.default_rng(config.seed)
     report = {"n_splats_initial": len(params), "device": device, "backend": backend, "scene_scale": scale,
               "psnr_test_initial": _mean_psnr(params, test, fixed_bg, config.sh_degree, backend)}
-    grad2d = torch.zeros(len(params), device=device)
-    count = torch.zeros(len(params), device=device)
+    density = DensityControl(config, scale, len(params), device, generator)
     losses, events, order = [], [], []
     start = time.perf_counter()
     bar = tqdm(total=config.iterations, desc="train splats", unit="it", disable=not progress)
@@ -452,26 +321,12 @@ def train_splats(init: SplatCloud, train_views: Sequence[TrainView], test_views:
             loss = loss + config.ssim_weight * (1.0 - ssim(out.rgb, target))
         if loss.requires_grad:  # False when no splat reaches this view: nothing to learn from it
             loss.backward()
-        with torch.no_grad():
-            if step < config.densify_until:
-                g = out.means2d_grad()
-                if g is not None:
-                    norm = torch.stack([g[:, 0] * view.view.width / 2, g[:, 1] * view.view.height / 2], 1).norm(dim=1)
-                    grad2d += torch.where(out.visible, norm, torch.zeros_like(norm))
-                    count += out.visible.to(count.dtype)
+        density.accumulate(out, view.view.width, view.view.height, step)
         params.optimizer.step()
         params.optimizer.zero_grad(set_to_none=True)
-        if config.densify_at(step):
-            event = densify_and_prune(
-                params, grad2d / count.clamp_min(1), grad_threshold=config.grad_threshold,
-                split_scale=config.percent_dense * scale, min_opacity=config.min_opacity,
-                max_scale=config.max_scale * scale if step > config.opacity_reset_every else None,
-                split_divisor=config.split_scale_divisor, max_splats=config.max_splats, generator=generator)
-            events.append({"step": step, **event})
-            grad2d = torch.zeros(len(params), device=device)
-            count = torch.zeros(len(params), device=device)
-        if config.reset_opacity_at(step):
-            params.reset_opacity(config.opacity_reset_value)
+        event = density.update(params, step)
+        if event is not None:
+            events.append(event)
         losses.append(float(loss.detach()))
         bar.update(1)
         if step % 10 == 0 or step == config.iterations:
@@ -486,5 +341,5 @@ def train_splats(init: SplatCloud, train_views: Sequence[TrainView], test_views:
     return params.to_cloud(), report
 
 
-__all__ = ["TrainView", "SplatTrainConfig", "SplatParams", "init_from_points", "train_splats", "densify_and_prune",
-           "psnr", "ssim", "scene_scale_of", "PRESETS", "STANDARD_SCHEDULE"]
+__all__ = ["TrainView", "SplatTrainConfig", "init_from_points", "train_splats", "psnr", "ssim", "scene_scale_of",
+           "PRESETS", "STANDARD_SCHEDULE"]

@@ -13,7 +13,7 @@ import trimesh
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.cloud import SplatCloud
-from pegasus_gen.splats.surface import surface_splats
+from pegasus_gen.splats.surface_splats import surface_splats
 
 DEFAULT_SPACING = 0.002  # metres between neighbouring splats
 

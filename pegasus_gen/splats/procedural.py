@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from pegasus_gen.splats.cloud import SplatCloud
-from pegasus_gen.splats.surface import surface_splats
+from pegasus_gen.splats.surface_splats import surface_splats
 
 
 def wood_texture(u: np.ndarray, v: np.ndarray) -> np.ndarray:

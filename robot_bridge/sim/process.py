@@ -11,7 +11,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from robot_bridge.sim.client import DASHBOARD_PORT, RTDE_PORT, dashboard_command
+from robot_bridge.sim.client import DASHBOARD_PORT, RTDE_PORT, SimCell, dashboard_command
 from robot_bridge.sim.options import check_settings
 
 
@@ -45,8 +45,13 @@ class SimControllerProcess:
         raise RuntimeError(f"simulated UR controller did not come up on {self.host} within {timeout:.0f} s")
 
     def command(self, text: str, timeout: float = 5.0) -> str:
-        """One dashboard command (e.g. the ``sim ...`` ones) and its answer line."""
+        """One dashboard command and its answer line."""
         return dashboard_command(self.host, text, timeout)
+
+    @property
+    def cell(self) -> SimCell:
+        """The simulated cell's ``sim ...`` commands."""
+        return SimCell(self.host)
 
     def log_lines(self) -> list[str]:
         return self.log_path.read_text().splitlines() if self.log_path.is_file() else []

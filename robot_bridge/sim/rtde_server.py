@@ -16,7 +16,7 @@ import struct
 import threading
 import time
 
-from robot_bridge.kinematics import matrix_to_pose
+from robot_bridge.kinematics import matrix_to_rtde_pose
 from robot_bridge.sim import rtde_protocol as rp
 from robot_bridge.sim.dashboard import CONTROLLER_VERSION
 
@@ -36,12 +36,12 @@ class RtdeServer:
         """The current values of the RTDE output variables ``names`` (of types ``kinds``); the state is
         read once per call (one forward kinematics), not once per variable."""
         s, sim = self.c.state, self.c.sim
-        tcp_pose = tuple(matrix_to_pose(sim.tcp_pose()))
+        tcp_pose = tuple(matrix_to_rtde_pose(sim.tcp_pose()))
         state = {
             "timestamp": self.c.elapsed(), "actual_q": tuple(sim.q), "target_q": tuple(sim.q),
             "actual_qd": tuple(sim.qd), "target_qd": tuple(sim.qd),
             "actual_TCP_pose": tcp_pose, "target_TCP_pose": tcp_pose,
-            "tcp_offset": tuple(matrix_to_pose(sim.tcp)),
+            "tcp_offset": tuple(matrix_to_rtde_pose(sim.tcp)),
             "robot_mode": ROBOT_MODE_RUNNING, "joint_mode": (253,) * 6,
             "safety_mode": SAFETY_PROTECTIVE_STOP if s.protective_stop else SAFETY_NORMAL,
             "safety_status": SAFETY_PROTECTIVE_STOP if s.protective_stop else SAFETY_NORMAL,

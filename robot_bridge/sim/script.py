@@ -19,7 +19,14 @@ import socket
 
 import numpy as np
 
-from robot_bridge.kinematics import fk, joints_problem, matrix_to_pose, nearest_ik, pose_to_matrix, rtde_pose_problem
+from robot_bridge.kinematics import (
+    fk,
+    joints_problem,
+    matrix_to_rtde_pose,
+    nearest_ik,
+    rtde_pose_problem,
+    rtde_pose_to_matrix,
+)
 from robot_bridge.sim.world import MotionError
 
 READY, DONE = 1, 2  # what the script signals in output_int_register_0
@@ -192,7 +199,7 @@ class ControlProgram:
             if cmd == Command.MOVEJ:
                 sim.move_joints(target, speed * c.state.speed_slider, acc)
             else:
-                sim.move_linear(pose_to_matrix(target), speed * c.state.speed_slider, acc)
+                sim.move_linear(rtde_pose_to_matrix(target), speed * c.state.speed_slider, acc)
         except MotionError as exc:
             c.record(f"{name} failed: {exc}")
             c.protective_stop(str(exc))
@@ -228,7 +235,7 @@ class ControlProgram:
             problem = f"the TCP would lie {np.linalg.norm(pose[:3]):.3g} m from the flange (at most {MAX_TCP_OFFSET})"
         if problem is not None:
             return self._fault(f"setTcp {pose.tolist()}: {problem}")
-        self.c.sim.tcp = pose_to_matrix(pose)
+        self.c.sim.tcp = rtde_pose_to_matrix(pose)
         self.c.record(f"setTcp {np.round(pose, 5).tolist()}")
         return True
 
@@ -241,7 +248,7 @@ class ControlProgram:
         problem = rtde_pose_problem(pose) or (None if np.isfinite(qnear).all() else "qnear is not finite")
         if problem is not None:
             return self._fault(f"getInverseKinematics {pose.tolist()}: {problem}")
-        q = nearest_ik(pose_to_matrix(pose) @ np.linalg.inv(sim.tcp), qnear)
+        q = nearest_ik(rtde_pose_to_matrix(pose) @ np.linalg.inv(sim.tcp), qnear)
         if q is None:
             return self._fault(f"getInverseKinematics {np.round(pose, 5).tolist()}: no solution (out of reach)")
         for k, v in enumerate(q):
@@ -250,13 +257,13 @@ class ControlProgram:
         return True
 
     def _tcp_offset(self, cmd: int) -> bool:
-        for k, v in enumerate(matrix_to_pose(self.c.sim.tcp)):
+        for k, v in enumerate(matrix_to_rtde_pose(self.c.sim.tcp)):
             self._write_double(k, v)
         return True
 
     def _forward_kinematics(self, cmd: int) -> bool:
         sim = self.c.sim
-        for k, v in enumerate(matrix_to_pose(fk(sim.q, sim.tcp))):
+        for k, v in enumerate(matrix_to_rtde_pose(fk(sim.q, sim.tcp))):
             self._write_double(k, v)
         return True
 

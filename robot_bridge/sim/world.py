@@ -24,12 +24,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from pegasus_gen.io.bullet import quiet_pybullet
+from robot_bridge.cell import SIM_CELL
 from robot_bridge.kinematics import fk, nearest_ik
 from robot_bridge.ur5_urdf import GRIPPER_FORCE, GRIPPER_STROKE, TCP_Z, ur5_urdf
 
 pb = quiet_pybullet()
 
-HOME_Q = np.array([0.0, -1.8, 1.8, -1.57, -1.57, 0.0])  # rad: TCP pointing down in front of the base
+HOME_Q = np.array(SIM_CELL.home)  # rad: the cell's home joints (TCP pointing down in front of the base)
 
 
 class MotionError(RuntimeError):

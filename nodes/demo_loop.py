@@ -20,11 +20,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from nodes.launch import run as run_launch
 from pegasus_gen.errors import PegasusError
+from robot_bridge.cell import SIM_CELL
 
-# The simulated cell's camera (sim_pick_place.launch.py): 640x480, 60 degree field of view (fx 554 px), about
-# 0.55-0.8 m from the pick area, looking down at 45-65 degrees.
-CELL_CAMERA_FX = 554.0
-HELD_OUT_CAMERA = ["camera.width=640", "camera.height=480", "camera.fov_deg=60", "trajectory.distance=[0.55, 0.8]",
+# The simulated cell's camera (robot_bridge.cell): its image size and field of view (fx rounded to a pixel for the
+# training images), 0.55-0.8 m from the pick area, looking down at 45-65 degrees.
+CELL_CAMERA_FX = float(round(SIM_CELL.camera_fx))
+HELD_OUT_CAMERA = [f"camera.width={SIM_CELL.camera_size[0]}", f"camera.height={SIM_CELL.camera_size[1]}",
+                   f"camera.fov_deg={SIM_CELL.camera_fov_deg:g}", "trajectory.distance=[0.55, 0.8]",
                    "trajectory.elevation_deg=[45, 65]"]
 
 
@@ -119,7 +121,7 @@ def run_demo(out: str | Path, settings: DemoSettings | None = None, library: str
              host: str = "127.0.0.1") -> Path:
     """Run every step with ``settings`` (default: ``DemoSettings.small()``) into ``out`` (refused when it is
     not empty) and return the report's path; ``out``/summary.json holds its figures."""
-    from pegasus_gen.assets.demo import build_demo_library
+    from pegasus_gen.assets.demo_library import build_demo_library
     from pegasus_gen.assets.library import AssetLibrary
 
     s = settings or DemoSettings.small()
@@ -149,7 +151,7 @@ def run_demo(out: str | Path, settings: DemoSettings | None = None, library: str
         raise PegasusError(f"the generate-train-deploy loop ended without a model ({[n.get_name() for n in nodes]})")
 
     t0 = time.monotonic()
-    from dope_training.evaluate import evaluate, write_report
+    from dope_training.evaluate import evaluate, write_eval_report
     from dope_training.infer import DopeModel
     from pegasus_gen.dataset.config import load_config
     from pegasus_gen.dataset.generate import generate
@@ -157,7 +159,7 @@ def run_demo(out: str | Path, settings: DemoSettings | None = None, library: str
     held_out = generate(load_config(None, [f"output={out / 'held_out'}", *held_out_overrides(
         lib.root, target, s.held_out_environment, device=s.device)]))
     report = evaluate(DopeModel(model), held_out, "train_pbr", refine=True)
-    write_report(report, out / "eval_held_out")
+    write_eval_report(report, out / "eval_held_out")
     times["evaluate on a held-out environment"] = time.monotonic() - t0
 
     t0 = time.monotonic()

@@ -1,6 +1,11 @@
-"""Scenes as Ray tasks (``pegasus generate --ray``): one machine's cores or a cluster's.
+"""Scenes of a run in parallel, each built by the one per-scene entry ``dataset.scene.build_scene``: in worker
+processes on this machine (``build_in_processes``) or as Ray tasks (``build_on_ray``) on one machine's cores or
+a cluster's.
 
-``ray`` is ``auto`` (the running cluster: ``ray start --head`` on one node, ``ray start --address HEAD:6379``
+Worker processes: ``workers`` of them (spawned, as forked numba/OpenMP thread pools are not safe), each dying
+with the run (even a kill -9 of it), sharing the CPU cores and loading the assets once.
+
+Ray: ``ray`` is ``auto`` (the running cluster: ``ray start --head`` on one node, ``ray start --address HEAD:6379``
 on the others), ``local`` (a private Ray instance on this machine with ``workers`` CPUs, shut down at the
 end) or a cluster address (``HEAD:6379`` or ``ray://HEAD:10001``). A Ray instance already initialised in
 this process is used as it is.
@@ -17,14 +22,73 @@ only for the driver.
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import multiprocessing
+import os
+import signal
 import socket
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
-from typing import Callable
 
 from tqdm import tqdm
 
 from pegasus_gen.dataset.config import GenerateConfig
+from pegasus_gen.dataset.scene import Assets, build_scene, load_assets
 from pegasus_gen.errors import PegasusError
+
+_worker_assets: Assets | None = None
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """In a child process: be killed (SIGKILL) when the parent dies, even by kill -9 (Linux
+    ``PR_SET_PDEATHSIG``; elsewhere nothing); exit at once if it is already gone."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def _init_worker(cfg: GenerateConfig, parent_pid: int) -> None:
+    """Worker process start: die with the parent, share the CPU cores between the workers and load the
+    assets once."""
+    global _worker_assets
+    import numba
+
+    die_with_parent(parent_pid)
+    numba.set_num_threads(max(1, (os.cpu_count() or 1) // cfg.workers))
+    _worker_assets = load_assets(cfg)
+
+
+def _worker_scene(split: Path, scene_id: int, cfg: GenerateConfig, frames_done) -> None:
+    build_scene(split, scene_id, cfg, _worker_assets, lambda: frames_done.put(1))
+
+
+def build_in_processes(split: Path, todo: list[int], cfg: GenerateConfig, bar: tqdm) -> None:
+    """``todo`` scenes spread over ``cfg.workers`` processes; ``bar`` advances per written frame."""
+    from multiprocessing.managers import SyncManager
+
+    context = multiprocessing.get_context("spawn")  # forked numba/OpenMP thread pools are not safe
+    manager = SyncManager(ctx=context)
+    manager.start(die_with_parent, (os.getpid(),))
+    with manager:
+        frames_done = manager.Queue()
+        with ProcessPoolExecutor(cfg.workers, mp_context=context, initializer=_init_worker,
+                                 initargs=(cfg, os.getpid())) as pool:
+            running = {pool.submit(_worker_scene, split, s, cfg, frames_done) for s in todo}
+            try:
+                while running:
+                    done, running = wait(running, timeout=0.25, return_when=FIRST_COMPLETED)
+                    while not frames_done.empty():
+                        bar.update(frames_done.get())
+                    for future in done:
+                        future.result()  # a worker's error ends the run
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+
 
 RETRIES = 2  # further tries of a failed scene
 
@@ -80,22 +144,22 @@ def ray_session(address: str | None, cpus: int):
             ray.shutdown()
 
 
-def _scene_task(build: Callable, split: str, scene_id: int, cfg: GenerateConfig, assets) -> int:
+def _scene_task(split: str, scene_id: int, cfg: GenerateConfig, assets: Assets) -> int:
     try:
-        build(Path(split), scene_id, cfg, assets)
+        build_scene(Path(split), scene_id, cfg, assets)
     except Exception as exc:  # one line in Ray's retry notices, not the whole traceback
         raise RuntimeError(f"scene {scene_id}: {type(exc).__name__}: {exc}") from None
     return scene_id
 
 
-def build_on_ray(build: Callable, split: Path, todo: list[int], cfg: GenerateConfig, assets, bar: tqdm) -> None:
-    """Build each of the ``todo`` scenes of ``split`` with ``build(split, scene_id, cfg, assets)`` (generate's
-    build_scene) as a Ray task, inside a ``ray_session``; ``bar`` advances by a scene's frames when its task
-    completes. Raises PegasusError naming the scenes that failed every try."""
+def build_on_ray(split: Path, todo: list[int], cfg: GenerateConfig, assets: Assets, bar: tqdm) -> None:
+    """Build each of the ``todo`` scenes of ``split`` with ``build_scene`` as a Ray task, inside a
+    ``ray_session``; ``bar`` advances by a scene's frames when its task completes. Raises PegasusError naming
+    the scenes that failed every try."""
     ray = _ray()
     task = ray.remote(num_cpus=1, max_retries=RETRIES, retry_exceptions=True)(_scene_task)
     shared = ray.put(assets)
-    pending = {task.remote(build, str(split), s, cfg, shared): s for s in todo}
+    pending = {task.remote(str(split), s, cfg, shared): s for s in todo}
     failed = {}
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)

@@ -20,7 +20,7 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.cloud import SplatCloud, concatenate
 from pegasus_gen.splats.from_mesh import mesh_to_splats
 from pegasus_gen.splats.procedural import plane, wood_texture
-from pegasus_gen.splats.surface import surface_splats
+from pegasus_gen.splats.surface_splats import surface_splats
 
 DEMO_VERSION = 5
 OBJECT_SPACING = 0.0015  # m between splats on objects

@@ -1,7 +1,9 @@
-"""BOP format (bop_toolkit's definitions), written and read: poses and cameras in mm, gt_info, test targets;
-and the frames of a BOP split read back as arrays. (Models: ``dataset.models``; COCO: ``dataset.coco``.)
+"""BOP format (bop_toolkit's definitions), written and read: poses and cameras in mm, depth PNGs, gt_info, test
+targets, BOP19 results files; the frames, models and models_info of a BOP dataset read back as arrays.
+(Writing the models: ``dataset.models``; COCO: ``dataset.coco``.)
 
-Inside the code poses are metres; every function here converts to and from BOP's millimetres at the files.
+Inside the code poses, depths and models are metres; every function here converts to and from BOP's
+millimetres at the files, and no other module does.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import trimesh
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import read_json, write_atomic
@@ -31,6 +34,15 @@ def camera_entry(K: np.ndarray, T_cam_world: np.ndarray, depth_scale: float) -> 
     return {"cam_K": [float(v) for v in np.asarray(K).ravel()], "depth_scale": float(depth_scale),
             "cam_R_w2c": [float(v) for v in np.asarray(T_cam_world)[:3, :3].ravel()],
             "cam_t_w2c": [float(v) * 1000.0 for v in np.asarray(T_cam_world)[:3, 3]]}
+
+
+def read_depth_png(path: str | os.PathLike, depth_scale: float) -> np.ndarray:
+    """The depth image [H, W] float64 in metres (0 where there is none) of a BOP depth PNG whose values times
+    ``depth_scale`` are mm; a PegasusError when it is not a single-channel image."""
+    values = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if values is None or values.ndim != 2:
+        raise PegasusError(f"{path}: not a single-channel depth image")
+    return values.astype(np.float64) * depth_scale / 1000.0
 
 
 def depth_to_png_values(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
@@ -134,6 +146,13 @@ def targets_bop19(split_dir: Path, min_visib_fract: float = 0.1) -> list[dict]:
 BOP19_HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 
 
+def result_row(scene_id: int, im_id: int, obj_id: int, score: float, T_cam_obj: np.ndarray, seconds: float) -> dict:
+    """One estimate (T_cam_obj [4, 4], m) as a row of :func:`write_bop_results` (t in mm)."""
+    return {"scene_id": int(scene_id), "im_id": int(im_id), "obj_id": int(obj_id), "score": float(score),
+            "R": np.asarray(T_cam_obj)[:3, :3].ravel().tolist(), "t": (np.asarray(T_cam_obj)[:3, 3] * 1000.0).tolist(),
+            "time": seconds}
+
+
 def write_bop_results(path: str | os.PathLike, rows: list[dict]) -> Path:
     """A BOP19 results file (bop_toolkit's ``save_bop_results``): one line per estimate, R as 9 numbers
     row-major and t as 3 numbers in mm, space-separated; time in seconds (-1: unknown), the same for every
@@ -166,9 +185,51 @@ def read_bop_results(path: str | os.PathLike) -> list[dict]:
 # ------------------------------------------------------------------ reading
 def model_boxes(root: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """{obj_id: (bbox_min [3], bbox_size [3]) in metres} from a BOP dataset's models/models_info.json."""
-    info = read_json(Path(root) / "models" / "models_info.json")
-    return {int(k): (np.array([v["min_x"], v["min_y"], v["min_z"]]) / 1000.0,
-                     np.array([v["size_x"], v["size_y"], v["size_z"]]) / 1000.0) for k, v in info.items()}
+    return {k: (info.bbox_min, info.bbox_size) for k, info in models_info(root).items()}
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """One object's models_info.json entry in metres: bbox_min [3], bbox_size [3], diameter (None where the
+    entry has none); whether it lists discrete or continuous symmetries."""
+
+    bbox_min: np.ndarray
+    bbox_size: np.ndarray
+    diameter: float | None
+    symmetric: bool
+
+
+def models_info(root: Path) -> dict[int, ModelInfo]:
+    """{obj_id: ModelInfo} of a BOP dataset's models/models_info.json; a PegasusError naming the file and the
+    object when an entry lacks a field."""
+    path = Path(root) / "models" / "models_info.json"
+    out = {}
+    for key, v in read_json(path).items():
+        try:
+            out[int(key)] = ModelInfo(np.array([v["min_x"], v["min_y"], v["min_z"]], float) / 1000.0,
+                                      np.array([v["size_x"], v["size_y"], v["size_z"]], float) / 1000.0,
+                                      float(v["diameter"]) / 1000.0 if "diameter" in v else None,
+                                      bool(v.get("symmetries_discrete") or v.get("symmetries_continuous")))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PegasusError(f"{path}: obj_id {key}: not a BOP models_info entry ({type(exc).__name__}: {exc})") \
+                from None
+    return out
+
+
+def read_model(root: Path, obj_id: int, evaluation: bool = False) -> trimesh.Trimesh:
+    """The BOP model of ``obj_id`` (models/obj_XXXXXX.ply, mm) as a mesh in metres; with ``evaluation`` the
+    one in models_eval/ when the dataset has it. A PegasusError when it is missing or unreadable."""
+    folders = ("models_eval", "models") if evaluation else ("models",)
+    path = next((p for p in (Path(root) / f / f"obj_{obj_id:06d}.ply" for f in folders) if p.is_file()),
+                Path(root) / "models" / f"obj_{obj_id:06d}.ply")
+    if not path.is_file():
+        raise PegasusError(f"{path}: the model of obj_id {obj_id} is missing")
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except (OSError, ValueError) as exc:
+        raise PegasusError(f"{path}: cannot read the model of obj_id {obj_id} ({exc})") from None
+    mesh.apply_scale(0.001)
+    return mesh
 
 
 def object_names(root: Path) -> dict[str, int]:
@@ -206,10 +267,7 @@ class BopFrame:
         """The depth image [H, W] in metres (0 where there is none)."""
         if self.depth is None:
             raise PegasusError(f"{self.scene}: no depth image for im_id {self.im_id}")
-        values = cv2.imread(str(self.depth), cv2.IMREAD_UNCHANGED)
-        if values is None or values.ndim != 2:
-            raise PegasusError(f"{self.depth}: not a single-channel depth image")
-        return values.astype(np.float64) * self.depth_scale / 1000.0
+        return read_depth_png(self.depth, self.depth_scale)
 
 
 def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
