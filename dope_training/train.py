@@ -279,10 +279,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     check_memory(memory_estimate(architecture, cfg.size, cfg.size, cfg.batch_size, training=True), device,
                  f"training on {cfg.size} px crops in batches of {cfg.batch_size}")
     model.to(device)
-    trunk = {id(p) for p in model.features.parameters()}
-    optimiser = torch.optim.Adam([  # lr_scale: each group's share of the schedule's learning rate
-        {"params": [p for p in model.parameters() if id(p) in trunk], "lr_scale": cfg.trunk_lr_scale},
-        {"params": [p for p in model.parameters() if id(p) not in trunk], "lr_scale": 1.0}], lr=cfg.lr)
+    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
     first_epoch, step = 0, 0
@@ -337,7 +334,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
                 scaler.scale(loss).backward()
                 lr = learning_rate(cfg, step, per_epoch * cfg.epochs)
                 for group in optimiser.param_groups:
-                    group["lr"] = lr * group["lr_scale"]
+                    group["lr"] = lr
                 scaler.step(optimiser)
                 scaler.update()
                 counts = torch.tensor([loss.item() * len(image), float(len(image))], dtype=torch.float64)

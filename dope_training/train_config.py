@@ -25,10 +25,6 @@ class TrainConfig(BaseModel):
     variant: Literal["full", "light", "pretrained"] = Field(
         "light", description="full: the original DOPE (GPU); light: 3 narrow stages for CPU; pretrained: light's "
                              "stages on an ImageNet-pretrained EfficientNet-Lite0 trunk")
-    trunk_lr_scale: float = Field(1.0, ge=0.0, le=1.0, description="pretrained variant: the ImageNet trunk's "
-                                  "learning rate as a share of lr (fine-tuning moves the features learnt on photos "
-                                  "less than DOPE's new stages; 0 keeps its weights, its BatchNorm statistics still "
-                                  "follow the data)")
     batch_norm: Optional[bool] = Field(None, description="BatchNorm after every hidden convolution (default: the "
                                                          "variant's: light yes, full no)")
     size: int = Field(0, ge=0, description="crop size, px (default: full 400, light 320)")
@@ -70,8 +66,6 @@ class TrainConfig(BaseModel):
     def _variant_defaults(self) -> "TrainConfig":
         self.size = self.size or (400 if self.variant == "full" else 320)
         self.lr = self.lr or (1e-4 if self.variant == "full" else 1e-3)
-        if self.trunk_lr_scale != 1.0 and self.variant != "pretrained":
-            raise ValueError(f"trunk_lr_scale is for a pretrained trunk: variant pretrained, not {self.variant}")
         return self
 
 
