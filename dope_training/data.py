@@ -1,5 +1,5 @@
 """Training data for DOPE: BOP datasets (and DOPE/NDDS json folders) -> images with 9 keypoints per
-instance -> augmented crops with belief and affinity targets.
+instance -> augmented crops with belief and affinity targets, and distance targets for a distance head.
 
 A sample is one image and its instances of the target objects: the 9 DOPE keypoints (cuboid corners of
 the model's bounding box in DOPE's order, then its centre) projected with the GT pose and K, in pixels.
@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from dope_training.targets import SIGMA_PX, make_targets
+from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
@@ -34,13 +34,15 @@ from pegasus_gen.io.files import read_json
 
 @dataclass
 class Sample:
-    """One image: its path, K [3, 3] and per instance the 9 keypoints [9, 2] (px), obj_id and visibility."""
+    """One image: its path, K [3, 3] and per instance the 9 keypoints [9, 2] (px), obj_id, visibility and the
+    depth of its model box's centre (m, camera z; NaN where the data do not say: DOPE/NDDS folders)."""
 
     image: Path
     K: np.ndarray
     keypoints: list[np.ndarray] = field(default_factory=list)
     obj_ids: list[int] = field(default_factory=list)
     visibility: list[float] = field(default_factory=list)
+    depths: list[float] = field(default_factory=list)
 
 
 def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> list[int]:
@@ -114,6 +116,7 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
                 sample.keypoints.append(keypoints)
                 sample.obj_ids.append(inst.obj_id)
                 sample.visibility.append(visib)
+                sample.depths.append(float(T[2, :3] @ cuboids[inst.obj_id][8] + T[2, 3]))
         if sample.keypoints or keep_empty:
             samples.append(sample)
     return samples
@@ -144,6 +147,7 @@ def load_ndds(folder: str | Path, classes, min_visibility: float = 0.1) -> list[
             sample.keypoints.append(points)
             sample.obj_ids.append(ids[obj["class"]])
             sample.visibility.append(float(obj.get("visibility", 1)))
+            sample.depths.append(np.nan)
         if sample.keypoints:
             samples.append(sample)
     if not samples:
@@ -202,7 +206,8 @@ def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> 
 
 
 class DopeDataset(torch.utils.data.Dataset):
-    """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [9, S/8, S/8], affinities [16, S/8, S/8]).
+    """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [9, S/8, S/8], affinities [16, S/8, S/8], distance
+    [1, S/8, S/8] and its weight [1, S/8, S/8]: ``targets.make_distance_targets`` at the crop's focal length).
 
     Each item draws its augmentation from a generator seeded by (seed, epoch, index), so runs repeat. A crop
     is centred near one of the sample's instances, or, for a share ``negatives`` of the items and for samples
@@ -247,8 +252,13 @@ class DopeDataset(torch.utils.data.Dataset):
         return crop, moved, M
 
     def __getitem__(self, index: int):
-        crop, keypoints, _ = self.item(index)
+        crop, keypoints, M = self.item(index)
         beliefs, affinities = make_targets(keypoints, np.ones(keypoints.shape[:2], bool), self.size, self.size,
                                            stride=self.stride, sigma_px=self.sigma_px)
+        sample = self.samples[index]
+        focal = np.sqrt(sample.K[0, 0] * sample.K[1, 1] * abs(np.linalg.det(M[:, :2])))  # the crop's, px
+        depths = sample.depths if len(sample.depths) == len(keypoints) else np.full(len(keypoints), np.nan)
+        distance, weight = make_distance_targets(keypoints[:, 8], distance_code(depths, focal), self.size, self.size,
+                                                 self.stride, self.sigma_px)
         image = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1).float() / 255.0
-        return image, torch.from_numpy(beliefs), torch.from_numpy(affinities)
+        return image, *(torch.from_numpy(t) for t in (beliefs, affinities, distance, weight))

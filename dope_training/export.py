@@ -2,7 +2,8 @@
 
 The graph's input ``image`` [B, 3, H, W] float32 is RGB in 0..1 (H, W multiples of 8): the normalisation
 (mean/std, stored in the model's config) is part of the network and so of the graph. Its outputs are the
-last stage's ``beliefs`` [B, 9, H/8, W/8] and ``affinities`` [B, 16, H/8, W/8]; batch, height and width
+last stage's ``beliefs`` [B, 9, H/8, W/8] and ``affinities`` [B, 16, H/8, W/8], and for a network with a
+distance head ``distance`` [B, 1, H/8, W/8] (distance codes, ``targets.distance_code``); batch, height and width
 are dynamic. metadata_props hold ``variant``, ``stride``, ``input`` (the layout and range above),
 ``mean``, ``std`` (JSON lists) and ``config`` (the model's config as JSON, for ``model.build_model``); an
 export from a training checkpoint adds ``object`` (the TargetObject as JSON: obj_id, name, model box in
@@ -48,13 +49,13 @@ def _evaluating(model: nn.Module):
 
 
 class _LastStage(nn.Module):
-    """The network with only its last stage's (beliefs, affinities) as outputs."""
+    """The network with only its last stage's (beliefs, affinities[, distance]) as outputs."""
 
     def __init__(self, model: DopeNetwork):
         super().__init__()
         self.model = model
 
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
         return self.model(image)[-1]
 
 
@@ -70,6 +71,7 @@ def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17, metadata:
                            "training loss finite?)")
     config = model_config(model)
     maps = {0: "batch", 2: "map_height", 3: "map_width"}
+    names = ["beliefs", "affinities", "distance"][:len(outputs)]
     fd, tmp = tempfile.mkstemp(suffix=".onnx.tmp", dir=path.parent)
     os.close(fd)
     try:
@@ -77,9 +79,9 @@ def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17, metadata:
             # TorchScript exporter (its deprecation notice silenced): the torch.export one needs onnxscript
             warnings.filterwarnings("ignore", category=DeprecationWarning)
             torch.onnx.export(_LastStage(model), torch.zeros(1, 3, 64, 64), tmp, dynamo=False, opset_version=opset,
-                              input_names=["image"], output_names=["beliefs", "affinities"],
+                              input_names=["image"], output_names=names,
                               dynamic_axes={"image": {0: "batch", 2: "height", 3: "width"},
-                                            "beliefs": maps, "affinities": maps})
+                                            **{name: maps for name in names}})
         graph = onnx.load(tmp)
         meta = {"variant": config["variant"], "stride": str(STRIDE), "input": INPUT,
                 "mean": json.dumps(list(config["mean"])), "std": json.dumps(list(config["std"])),
@@ -97,9 +99,9 @@ def export_onnx(model: DopeNetwork, path: str | Path, opset: int = 17, metadata:
 
 
 def check_parity(model: DopeNetwork, path: str | Path, sizes, seed: int = 0) -> float:
-    """Max abs difference between onnxruntime (CPU) on the file at ``path`` and torch on ``model``, over both
-    outputs, for random inputs of each (batch, height, width) in ``sizes``; inf when either gives a value that
-    is not finite."""
+    """Max abs difference between onnxruntime (CPU) on the file at ``path`` and torch on ``model``, over all its
+    outputs, for random inputs of each (batch, height, width) in ``sizes``; inf when either gives a value that is
+    not finite."""
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(seed)
     worst = 0.0
@@ -107,7 +109,7 @@ def check_parity(model: DopeNetwork, path: str | Path, sizes, seed: int = 0) -> 
         image = rng.random((batch, 3, height, width), dtype=np.float32)
         with _evaluating(model):
             expected = [t.numpy() for t in model(torch.from_numpy(image))[-1]]
-        got = session.run(["beliefs", "affinities"], {"image": image})
+        got = session.run(None, {"image": image})
         if not all(np.isfinite(a).all() for a in (*got, *expected)):
             return math.inf
         worst = max(worst, *(float(np.abs(g - e).max()) for g, e in zip(got, expected)))

@@ -6,13 +6,14 @@ Steps: the image is scaled to the training crops' nominal scale (``data.input_sc
 multiple of 8, run; belief peaks are grouped into instances by the affinities (``decode.find_keypoints``); the
 keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as cv2.resize
 samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt, keypoints that do not fit the others
-dropped) with the camera K gives the pose. Missing corners do not drop a detection: any 5 of the 9 keypoints
-(the centroid counts as one) are solved, see ``pnp``. With a depth image, each pose is then refined against it
-(``refine.refine_multistart``), starting from the pose moved onto the ray through the detected centroid at the
-depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP cannot solve (too few corners joined
-it, or they put the object behind the camera) is then not lost: its refinement starts on the same ray with the
-object's own axes (the several-start refinement tries the other rotations), and it is kept when the depth
-confirms it.
+dropped) with the camera K gives the pose; a network with a distance head then moves it onto the ray through
+the detected centroid at the distance the head reads there (``on_centroid_ray``). Missing corners do not drop a
+detection: any 5 of the 9 keypoints (the centroid counts as one) are solved, see ``pnp``. With a depth image,
+each pose is then refined against it (``refine.refine_multistart``), starting from the pose moved onto the ray
+through the detected centroid at the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP
+cannot solve (too few corners joined it, or they put the object behind the camera) is then not lost: its
+refinement starts on the same ray with the object's own axes (the several-start refinement tries the other
+rotations), and it is kept when the depth confirms it.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from dope_training.decode import find_keypoints
 from dope_training.model import check_memory, config_from_dict, memory_estimate
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
-from dope_training.targets import STRIDE
+from dope_training.targets import STRIDE, distance_from_code, read_map
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
 
@@ -69,16 +70,17 @@ class ObjectPose:
 
 
 def on_centroid_ray(T_cam_obj: np.ndarray, cuboid: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
-                    dist: np.ndarray | None = None, depth_m: np.ndarray | None = None) -> np.ndarray:
+                    dist: np.ndarray | None = None, depth_m: np.ndarray | None = None,
+                    z_m: float | None = None) -> np.ndarray:
     """T_cam_obj [4, 4] moved so that the object's centre (``cuboid`` [9, 3]: its box corners and centre, m,
     object frame) lies on the ray through the detected centroid ``centroid_px`` [2] (image px): DOPE's
     centroid is its surest keypoint, while PnP lets wrong corners drag the centre off it, and its distance
-    with it. The centre keeps its z, or with ``depth_m`` [H, W] (m, 0 = none) takes the median depth of the
-    9x9 px around the centroid plus half the box's depth along the optical axis at the PnP rotation (the
-    surface seen there is the object's front). The start of depth refinement."""
+    with it. The centre keeps its z, or takes ``z_m`` (m: the distance head's), or with ``depth_m`` [H, W] (m,
+    0 = none) the median depth of the 9x9 px around the centroid plus half the box's depth along the optical
+    axis at the PnP rotation (the surface seen there is the object's front: the start of depth refinement)."""
     ray = cv2.undistortPoints(np.asarray(centroid_px, np.float64).reshape(1, 1, 2), K, dist).reshape(2)
     centre = T_cam_obj[:3, :3] @ cuboid[8] + T_cam_obj[:3, 3]
-    z = centre[2]
+    z = centre[2] if z_m is None else z_m
     if depth_m is not None:
         u, v = np.round(np.asarray(centroid_px)).astype(int)
         window = depth_m[max(v - 4, 0):max(v + 5, 0), max(u - 4, 0):max(u + 5, 0)]
@@ -102,10 +104,12 @@ def _metadata(meta: dict[str, str], key: str, parse, path: Path):
 
 class DopeModel:
     """A trained network ready for images. ``path``: an ``.onnx`` export (onnxruntime) or a ``.pt`` training
-    checkpoint (torch); ``device``: cpu, cuda or auto."""
+    checkpoint (torch); ``device``: cpu, cuda or auto; ``use_distance_head``: place each pose at its distance
+    head's distance (networks that have one), else where PnP puts it."""
 
-    def __init__(self, path: str | Path, device: str = "cpu", object_size=None):
+    def __init__(self, path: str | Path, device: str = "cpu", use_distance_head: bool = True):
         path = Path(path)
+        self.use_distance_head = use_distance_head
         if not path.is_file():
             raise PegasusError(f"{path}: no such model file")
         self.path = path
@@ -167,9 +171,11 @@ class DopeModel:
                          f"{self.short_side}, input_focal_px {self.focal_px:g})")
             self._sizes_checked.add(size)
 
-    def maps(self, image: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
-        """The last stage's beliefs [9, h, w] and affinities [16, h, w] for an RGB image [H, W, 3] uint8 seen
-        with intrinsics K [3, 3], and the (x, y) scale from image to network-input pixels."""
+    def maps(self, image: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
+                                                               tuple[float, float]]:
+        """The last stage's beliefs [9, h, w], affinities [16, h, w] and distance codes [h, w] (None without a
+        distance head) for an RGB image [H, W, 3] uint8 seen with intrinsics K [3, 3], and the (x, y) scale from
+        image to network-input pixels."""
         h, w = image.shape[:2]
         s = input_scale((h, w), K, self.short_side, self.focal_px)
         nw, nh = max(round(w * s), 1), max(round(h * s), 1)
@@ -178,13 +184,13 @@ class DopeModel:
         pw, ph = -nw % STRIDE, -nh % STRIDE
         x = np.pad(resized, ((0, ph), (0, pw), (0, 0))).transpose(2, 0, 1)[None].astype(np.float32) / 255.0
         if self.model is None:
-            beliefs, affinities = self.session.run(["beliefs", "affinities"], {"image": x})
+            outputs = self.session.run(None, {"image": x})
         else:
             on_cuda = self.device.type == "cuda"  # half precision there: the tensor cores' speed
             with torch.inference_mode(), torch.autocast("cuda", dtype=torch.float16, enabled=on_cuda):
-                outputs = self.model(torch.from_numpy(x).to(self.device))[-1]
-            beliefs, affinities = (t.float().cpu().numpy() for t in outputs)
-        return beliefs[0], affinities[0], (nw / w, nh / h)
+                outputs = [t.float().cpu().numpy() for t in self.model(torch.from_numpy(x).to(self.device))[-1]]
+        distance = outputs[2][0, 0] if len(outputs) == 3 else None
+        return outputs[0][0], outputs[1][0], distance, (nw / w, nh / h)
 
     def estimate(self, image: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
                  min_score: float = 0.1, depth_m: np.ndarray | None = None) -> list[ObjectPose]:
@@ -195,13 +201,19 @@ class DopeModel:
         if depth_m is not None and self.surface is None:
             raise PegasusError(f"{self.path}: this model carries no surface points of its object (trained on a "
                                "DOPE/NDDS folder), so it cannot be refined with depth")
-        beliefs, affinities, (sx, sy) = self.maps(image, K)
+        beliefs, affinities, distance, (sx, sy) = self.maps(image, K)
+        if not self.use_distance_head:
+            distance = None
         poses = []
         for det in find_keypoints(beliefs, affinities, stride=STRIDE, min_score=min_score):
             keypoints = (det.keypoints + 0.5) / [sx, sy] - 0.5
             T, error = solve_pose(keypoints, self.cuboid, K, dist) or (None, np.nan)
             if T is None and depth_m is None:
                 continue
+            if T is not None and distance is not None:
+                code = read_map(distance, det.keypoints[8], STRIDE)
+                z = float(distance_from_code(code, np.sqrt(K[0, 0] * sx * K[1, 1] * sy)))
+                T = on_centroid_ray(T, self.cuboid, keypoints[8], K, dist, z_m=z)
             pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:
                 start = on_centroid_ray(NO_PNP_START if T is None else T, self.cuboid, keypoints[8], K, dist, depth_m)

@@ -11,6 +11,11 @@ fewer multiply-adds, so it trains on a laptop CPU in minutes. ``pretrained``: th
 the ImageNet-pretrained EfficientNet-Lite0 trunk (``dope_training.backbone``: stride 8, 152 channels), whose
 features were learnt on real photos. Normalisation (the trunk's mean/std) happens inside the network: its
 input is RGB in 0..1.
+
+With ``distance_head`` a last branch reads the last stage's input (its beliefs, affinities and the features) and
+gives one map: at each centroid the object's distance code (``targets.distance_code``: how far away it is, from
+how large it looks), so that the distance need not come from the spread of the corners alone (on real photos
+the corners found span too small a cuboid, and PnP puts the object too far away).
 """
 
 from __future__ import annotations
@@ -29,6 +34,10 @@ from pegasus_gen.errors import PegasusError
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 LITE0_MEAN, LITE0_STD = (0.5, 0.5, 0.5), (0.5, 0.5, 0.5)  # EfficientNet-Lite's input scaling: -1..1
+# the distance codes' share of the loss (a 10 % distance error then costs about what a stage's belief error does
+# late in training) and the Huber loss's quadratic zone (log distance)
+DISTANCE_LOSS_WEIGHT = 0.1
+DISTANCE_HUBER = 0.05
 VGG19_TO_CONV4_2 = (64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512)  # features[:23]
 
 
@@ -45,6 +54,7 @@ class ModelConfig:
     batch_norm: bool = False  # BatchNorm after every hidden conv (trains from scratch; the full trunk has none)
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
+    distance_head: bool = False  # a branch after the last stage giving distance codes (module docstring)
 
     @staticmethod
     def of(variant: str) -> "ModelConfig":
@@ -80,7 +90,8 @@ def _branch(cin: int, cout: int, channels: int, first: bool, late_kernel: int, b
 
 class DopeNetwork(nn.Module):
     """image [B, 3, H, W] RGB 0..1 (H, W multiples of 8) -> list over stages of
-    (beliefs [B, 9, H/8, W/8], affinities [B, 16, H/8, W/8])."""
+    (beliefs [B, 9, H/8, W/8], affinities [B, 16, H/8, W/8]); with ``distance_head`` the last stage's tuple
+    has a third map, distance codes [B, 1, H/8, W/8]."""
 
     def __init__(self, config: ModelConfig | None = None):
         super().__init__()
@@ -105,6 +116,8 @@ class DopeNetwork(nn.Module):
         self.beliefs, self.affinities = (
             nn.ModuleList([_branch(feat if s == 0 else feat + 25, out, c.stage_channels, s == 0, c.late_kernel,
                                    c.batch_norm) for s in range(c.stages)]) for out in (9, 16))
+        self.distance = _branch(feat + 25, 1, c.stage_channels, False, c.late_kernel, c.batch_norm) \
+            if c.distance_head else None
         self.register_buffer("mean", torch.tensor(c.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(c.std).view(1, 3, 1, 1), persistent=False)
 
@@ -115,6 +128,8 @@ class DopeNetwork(nn.Module):
             b, a = belief(x), affinity(x)
             outputs.append((b, a))
             x = torch.cat([b, a, features], dim=1)
+        if self.distance is not None:
+            outputs[-1] = (*outputs[-1], self.distance(x))
         return outputs
 
 
@@ -199,9 +214,16 @@ def load_vgg19_weights(model: DopeNetwork, path=None) -> bool:
     return True
 
 
-def dope_loss(outputs, beliefs: torch.Tensor, affinities: torch.Tensor, peak_weight: float = 0.0) -> torch.Tensor:
+def dope_loss(outputs, beliefs: torch.Tensor, affinities: torch.Tensor, peak_weight: float = 0.0,
+              distance: torch.Tensor | None = None, distance_weight: torch.Tensor | None = None) -> torch.Tensor:
     """Sum over stages of MSE(beliefs) + MSE(affinities); targets [B, 9|16, h, w]. With ``peak_weight`` w > 0
     each belief cell's squared error is weighted by 1 + w * target (DOPE: 0), so the few cells near a
-    keypoint are not drowned by the empty rest of the map."""
+    keypoint are not drowned by the empty rest of the map. When the last stage has a distance map and
+    ``distance`` targets [B, 1, h, w] are given, plus DISTANCE_LOSS_WEIGHT x the Huber error (DISTANCE_HUBER:
+    its quadratic zone, in log distance) of the codes, averaged with ``distance_weight`` [B, 1, h, w]."""
     weight = 1.0 + peak_weight * beliefs
-    return sum((weight * (b - beliefs) ** 2).mean() + nn.functional.mse_loss(a, affinities) for b, a in outputs)
+    loss = sum((weight * (b - beliefs) ** 2).mean() + nn.functional.mse_loss(a, affinities) for b, a, *_ in outputs)
+    if len(outputs[-1]) == 3 and distance is not None:
+        error = nn.functional.smooth_l1_loss(outputs[-1][2], distance, reduction="none", beta=DISTANCE_HUBER)
+        loss = loss + DISTANCE_LOSS_WEIGHT * (distance_weight * error).sum() / distance_weight.sum().clamp(min=1.0)
+    return loss

@@ -55,6 +55,7 @@ def training_camera(focal_px: float, camera: RealCamera) -> dict:
 
 def train_fields(focal_px: float, epochs: int) -> dict:
     """TrainConfig fields of the recipe: CROP_PX crops at ``focal_px``, the demo's optimiser settings,
-    NEGATIVES of the crops on random points of the image."""
+    NEGATIVES of the crops on random points of the image, and a distance head (the distance from how large the
+    object looks, not from the spread of its corners)."""
     return {"size": CROP_PX, "focal_px": round(focal_px, 3), "epochs": epochs, "lr": 2e-3,
-            "schedule": "cosine", "peak_weight": 10.0, "negatives": NEGATIVES}
+            "schedule": "cosine", "peak_weight": 10.0, "negatives": NEGATIVES, "distance_head": True}

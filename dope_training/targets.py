@@ -1,4 +1,5 @@
-"""DOPE's training targets at the network's output stride: belief maps and affinity fields.
+"""DOPE's training targets at the network's output stride: belief maps, affinity fields and (for networks with a
+distance head) distance codes around each centroid.
 
 Map convention (``cells_to_pixels``; the decoder uses it as the exact inverse): output cell (i, j) covers input pixels
 [j*s, (j+1)*s) x [i*s, (i+1)*s); its centre is at input pixel ((j + 0.5) s - 0.5, (i + 0.5) s - 0.5)
@@ -8,10 +9,14 @@ with pixel centres at integer coordinates (OpenCV).
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 STRIDE = 8  # the network's output stride: one map cell per 8 x 8 input pixels
 SIGMA_PX = 4.0  # belief Gaussian std in input pixels (half a map cell at stride 8), as DOPE
 AFFINITY_RADIUS_PX = 8.0  # cells whose centre lies this close to a corner carry its affinity vector
+# distance codes: the log of the distance (m) at which a camera of this focal length (px) would see the object as
+# large as the network sees it, so that a code does not depend on the crop's scale
+DISTANCE_REF_PX = 500.0
 
 
 def cells_to_pixels(cells, stride: int) -> np.ndarray:
@@ -54,3 +59,41 @@ def make_targets(keypoints: np.ndarray, valid: np.ndarray, height: int, width: i
             affinities[2 * k][near] = direction[0] / norm
             affinities[2 * k + 1][near] = direction[1] / norm
     return beliefs, affinities
+
+
+def read_map(values: np.ndarray, point_px, stride: int) -> float:
+    """One map [h, w] read at input pixel ``point_px`` (x, y): bilinear between the cell centres
+    (``cells_to_pixels``'s inverse), the border cells' values beyond them."""
+    x, y = (np.asarray(point_px, np.float64) + 0.5) / stride - 0.5
+    return float(map_coordinates(np.asarray(values, np.float64), [[y], [x]], order=1, mode="nearest")[0])
+
+
+def distance_code(z_m, focal_px: float) -> np.ndarray:
+    """The distance code of an object whose centre lies ``z_m`` (m, along the optical axis; any shape) from a
+    camera of ``focal_px`` (px, the network input's): log(z * DISTANCE_REF_PX / focal_px)."""
+    return np.log(np.asarray(z_m, np.float64) * DISTANCE_REF_PX / focal_px)
+
+
+def distance_from_code(code, focal_px: float) -> np.ndarray:
+    """The inverse of ``distance_code``: metres from codes (any shape) read off a network input of ``focal_px``."""
+    return np.exp(np.asarray(code, np.float64)) * focal_px / DISTANCE_REF_PX
+
+
+def make_distance_targets(centroids: np.ndarray, codes: np.ndarray, height: int, width: int, stride: int = 8,
+                          sigma_px: float = SIGMA_PX) -> tuple[np.ndarray, np.ndarray]:
+    """The distance head's target and its weight, each [1, H/s, W/s] float32, for an input image of ``height`` x
+    ``width`` px. centroids [I, 2]: each instance's centroid (input px, x, y); codes [I]: its ``distance_code``
+    (NaN: unknown, no target). Each cell takes the code of the instance whose centroid belief (a Gaussian of std
+    ``sigma_px``, as ``make_targets``) is highest there, weighted by that belief: the head is taught where the
+    centroid's belief is, and read there."""
+    cx, cy = cell_centres(height, width, stride)
+    target = np.zeros((1, *cx.shape), np.float32)
+    weight = np.zeros((1, *cx.shape), np.float32)
+    for (x, y), code in zip(np.asarray(centroids, np.float64).reshape(-1, 2), np.asarray(codes, np.float64)):
+        if not np.isfinite(code):
+            continue
+        belief = np.exp(-((cx - x) ** 2 + (cy - y) ** 2) / (2 * sigma_px**2))
+        higher = belief > weight[0]
+        target[0][higher] = code
+        weight[0][higher] = belief[higher]
+    return target, weight

@@ -270,6 +270,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     architecture = ModelConfig.of(cfg.variant)
     if cfg.batch_norm is not None:
         architecture = replace(architecture, batch_norm=cfg.batch_norm)
+    architecture = replace(architecture, distance_head=cfg.distance_head)
     model = DopeNetwork(architecture)
     if state is None and cfg.variant == "full":
         if not load_vgg19_weights(model, cfg.vgg19) and rank == 0:
@@ -325,11 +326,12 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
         join = net.join() if world > 1 else contextlib.nullcontext()
         with join:
             t0 = time.perf_counter()
-            for batch, (image, beliefs, affinities) in enumerate(loader):
-                image, beliefs, affinities = (t.to(device, non_blocking=True) for t in (image, beliefs, affinities))
+            for batch, tensors in enumerate(loader):
+                image, beliefs, affinities, distance, weight = (t.to(device, non_blocking=True) for t in tensors)
                 with torch.autocast(device.type, dtype=torch.float16, enabled=use_amp):
                     outputs = net(image)
-                loss = dope_loss([(b.float(), a.float()) for b, a in outputs], beliefs, affinities, cfg.peak_weight)
+                loss = dope_loss([tuple(t.float() for t in stage) for stage in outputs], beliefs, affinities,
+                                 cfg.peak_weight, distance, weight)
                 optimiser.zero_grad(set_to_none=True)
                 scaler.scale(loss).backward()
                 lr = learning_rate(cfg, step, per_epoch * cfg.epochs)

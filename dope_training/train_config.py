@@ -25,6 +25,9 @@ class TrainConfig(BaseModel):
     variant: Literal["full", "light", "pretrained"] = Field(
         "light", description="full: the original DOPE (GPU); light: 3 narrow stages for CPU; pretrained: light's "
                              "stages on an ImageNet-pretrained EfficientNet-Lite0 trunk")
+    distance_head: bool = Field(False, description="a branch after the last stage that learns each object's distance "
+                                "from how large it looks; inference then places the object at that distance on the "
+                                "ray through its centroid instead of PnP's")
     batch_norm: Optional[bool] = Field(None, description="BatchNorm after every hidden convolution (default: the "
                                                          "variant's: light yes, full no)")
     size: int = Field(0, ge=0, description="crop size, px (default: full 400, light 320)")

@@ -9,7 +9,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dope_training.data import Augment, DopeDataset, Sample, canonical_pose, input_scale, load_bop
-from dope_training.targets import cell_centres, make_targets
+from dope_training.targets import (
+    cell_centres,
+    cells_to_pixels,
+    distance_code,
+    distance_from_code,
+    make_targets,
+    read_map,
+)
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 from pegasus_gen.errors import PegasusError
@@ -57,6 +64,7 @@ def test_bop_samples_put_keypoints_on_the_posed_model_box(dataset):
         entry = next(e for e in gt[str(im_id)] if e["obj_id"] == 1)
         p = np.array(entry["cam_R_m2c"]).reshape(3, 3) @ centre_mm + entry["cam_t_m2c"]
         np.testing.assert_allclose(sample.keypoints[0][8], (sample.K @ p)[:2] / p[2], atol=1e-6)
+        assert sample.depths[0] == pytest.approx(p[2] / 1000.0, rel=1e-9)  # the box centre's depth, m
         gt_idx = [e["obj_id"] for e in gt[str(im_id)]].index(1)
         mask = cv2.imread(str(scene / "mask" / f"{im_id:06d}_{gt_idx:06d}.png"), 0) > 0
         hull = cv2.convexHull(sample.keypoints[0][:8].astype(np.float32))
@@ -97,8 +105,9 @@ def test_augmented_crops_carry_their_keypoints_and_plain_borders(tmp_path):
         outside = source == 0
         if outside.any():  # beyond the source image: one plain colour, never a mirrored copy
             assert len(np.unique(crop[outside].reshape(-1, 3), axis=0)) == 1
-    image_t, beliefs, affinities = data[0]
+    image_t, beliefs, affinities, distance, weight = data[0]
     assert tuple(image_t.shape) == (3, 160, 160) and tuple(beliefs.shape) == (9, 20, 20)
+    assert tuple(distance.shape) == tuple(weight.shape) == (1, 20, 20) and float(weight.max()) == 0.0  # no depth
     assert float(image_t.max()) <= 1.0 and float(beliefs.max()) > 0.5
     for sigma in (4.0, 8.0):  # sigma_px reaches the targets: a Gaussian's sum over the cells is 2 pi sigma^2 / 8^2
         wide, sums = DopeDataset([sample], size=160, augment=still, sigma_px=sigma), []
@@ -179,3 +188,33 @@ def test_canonical_labels_of_a_symmetric_object_depend_only_on_what_the_camera_s
             towards = camera - (camera @ a) * a
             reference = np.eye(3)[np.argmin(np.abs(a))] - a[np.argmin(np.abs(a))] * a
             assert towards @ reference / np.linalg.norm(towards) / np.linalg.norm(reference) > 1 - 1e-9
+
+
+def test_distance_targets_give_back_each_instances_depth_at_any_crop_scale(tmp_path):
+    # One camera (fx 500, fy 520) sees two instances at 0.6 and 1.1 m; every augmented crop (random scale and
+    # turn) labels the cells at each centroid with a code that, read at the crop's own focal length (the
+    # camera's times the crop's scale, taken from the length of M's first column), gives that depth back.
+    K = np.array([[500.0, 0, 320], [0, 520.0, 240], [0, 0, 1]])
+    cv2.imwrite(str(tmp_path / "im.png"), np.zeros((480, 640, 3), np.uint8))
+    near, far = (np.array([[x, y]] * 9, np.float64) for x, y in ((300.0, 230.0), (340.0, 250.0)))
+    sample = Sample(tmp_path / "im.png", K, [near, far], [1, 1], [1.0, 1.0], [0.6, 1.1])
+    data = DopeDataset([sample], size=128, focal_px=400.0)
+    for epoch in range(6):
+        data.epoch = epoch
+        _, moved, M = data.item(0)
+        *_, code, weight = (t.numpy()[0] for t in data[0])
+        focal = np.sqrt(K[0, 0] * K[1, 1]) * np.hypot(*M[:, 0])
+        for (x, y), depth in zip(moved[:, 8], (0.6, 1.1)):
+            if 8 <= x < 120 and 8 <= y < 120:
+                i, j = int(y // 8), int(x // 8)
+                assert weight[i, j] > 0.3
+                assert distance_from_code(code[i, j], focal) == pytest.approx(depth, rel=1e-5)
+    assert distance_from_code(distance_code(0.8, 450.0), 450.0) == pytest.approx(0.8)
+    assert distance_code(0.8, 900.0) == pytest.approx(distance_code(0.4, 450.0))  # twice the focal: looks as near
+
+
+def test_a_distance_map_is_read_between_the_cell_centres():
+    values = np.arange(12.0).reshape(3, 4)  # cell (row i, column j) holds 4 i + j
+    for x, y in np.random.default_rng(0).uniform([0, 0], [3, 2], (20, 2)):  # fractional cells inside the map
+        assert read_map(values, cells_to_pixels([x, y], 8), 8) == pytest.approx(4 * y + x)
+    assert read_map(values, (-40.0, -40.0), 8) == 0.0 and read_map(values, (500.0, 500.0), 8) == 11.0

@@ -1,10 +1,20 @@
 """The DOPE network: stride-8 outputs of both variants, the original's size, VGG19 weights loading by
-torchvision's layout, the loss, and a light model that learns."""
+torchvision's layout, the loss, the distance head, and a light model that learns."""
 
 import numpy as np
+import pytest
 import torch
 
-from dope_training.model import DopeNetwork, ModelConfig, build_model, dope_loss, load_vgg19_weights, model_config
+from dope_training.model import (
+    DISTANCE_HUBER,
+    DISTANCE_LOSS_WEIGHT,
+    DopeNetwork,
+    ModelConfig,
+    build_model,
+    dope_loss,
+    load_vgg19_weights,
+    model_config,
+)
 
 
 def test_outputs_are_stride_8_with_9_beliefs_and_16_affinities():
@@ -59,3 +69,53 @@ def test_loss_is_zero_only_for_perfect_outputs_and_the_light_model_learns():
         optimiser.step()
         losses.append(loss.item())
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
+
+
+def test_a_distance_head_adds_one_map_to_the_last_stage_and_its_loss_counts_only_where_weighted():
+    from dataclasses import replace
+
+    for variant in ("light", "pretrained"):
+        model = DopeNetwork(replace(ModelConfig.of(variant), distance_head=True)).eval()
+        with torch.no_grad():
+            outputs = model(torch.rand(2, 3, 64, 96))
+        assert [len(o) for o in outputs] == [2, 2, 3] and tuple(outputs[-1][2].shape) == (2, 1, 8, 12)
+        assert build_model(model_config(model)).distance is not None
+    assert DopeNetwork(ModelConfig.of("light")).distance is None
+
+    torch.manual_seed(0)
+    beliefs, affinities = torch.rand(2, 9, 8, 8), torch.rand(2, 16, 8, 8) * 2 - 1
+    codes, weight = torch.rand(2, 1, 8, 8), torch.zeros(2, 1, 8, 8)
+    weight[0, 0, 3, 4] = 1.0
+    off = codes.clone()
+    off[weight == 0] += 5.0  # wrong only where nothing is weighted: no loss
+    assert dope_loss([(beliefs, affinities, off)], beliefs, affinities, 0.0, codes, weight).item() == 0.0
+    off[0, 0, 3, 4] += 1.0  # 1.0 off in log distance at the weighted cell: Huber 1 - 0.05 / 2, times the weight
+    loss = dope_loss([(beliefs, affinities, off)], beliefs, affinities, 0.0, codes, weight).item()
+    assert loss == pytest.approx(DISTANCE_LOSS_WEIGHT * (1.0 - DISTANCE_HUBER / 2))
+
+
+def test_the_distance_head_learns_the_codes_at_the_centroids():
+    from dataclasses import replace
+
+    from dope_training.targets import make_distance_targets, make_targets
+
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    kp = rng.uniform(8, 56, (2, 1, 9, 2))
+    codes = rng.uniform(-1, 1, 2)  # one instance per image, each at its own distance
+    targets = [make_targets(k, np.ones((1, 9), bool), 64, 64) for k in kp]
+    distance = [make_distance_targets(k[:, 8], [c], 64, 64) for k, c in zip(kp, codes)]
+    beliefs, affinities, codes_t, weight = (torch.from_numpy(np.stack([t[i] for t in group]))
+                                            for group, i in ((targets, 0), (targets, 1), (distance, 0), (distance, 1)))
+    model = DopeNetwork(replace(ModelConfig.of("light"), distance_head=True))
+    images = torch.rand(2, 3, 64, 64)
+    optimiser = torch.optim.Adam(model.parameters(), 1e-3)
+    errors = []
+    for _ in range(80):
+        outputs = model(images)
+        loss = dope_loss(outputs, beliefs, affinities, 0.0, codes_t, weight)
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        errors.append(float(((outputs[-1][2] - codes_t).abs() * weight).sum() / weight.sum()))
+    assert np.mean(errors[-5:]) < 0.3 * np.mean(errors[:5]), (errors[:5], errors[-5:])

@@ -10,6 +10,7 @@ import sys
 
 import cv2
 import numpy as np
+import onnxruntime
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
@@ -31,6 +32,8 @@ from dope_training.evaluate import (
 )
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, on_centroid_ray
+from dope_training.model import build_model
+from dope_training.targets import distance_code
 from dope_training.train import ShardSampler, TrainConfig, loader_workers, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
@@ -91,6 +94,42 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     assert len(doc["instances"]) == len(a)
     np.testing.assert_allclose(doc["instances"][0]["t_m"], a[0].T[:3, 3], atol=1e-6)
     assert cv2.imread(str(tmp_path / "inf" / "000000_poses.png")).shape == (240, 320, 3)
+
+
+def test_a_distance_head_places_each_pose_on_its_centroids_ray_at_the_distance_it_reads(dope_dataset, overfit_dope,
+                                                                                         tmp_path):
+    # The overfitted network with a distance head added whose map reads 1.2 m everywhere (its last convolution
+    # zero, its bias that distance's code at the network input's focal length): every pose keeps PnP's rotation
+    # and lands at 1.2 m on the ray through its detected centroid, through ONNX as through torch.
+    state = load_checkpoint(overfit_dope / "last.pt")
+    state["model_config"]["distance_head"] = True
+    model = build_model(state["model_config"])
+    assert not [k for k in model.load_state_dict(state["model"], strict=False).missing_keys
+                if not k.startswith("distance.")]
+    scene = dope_dataset / "train_pbr" / "000000"
+    K = np.array(json.loads((scene / "scene_camera.json").read_text())["0"]["cam_K"]).reshape(3, 3)
+    image = cv2.imread(str(scene / "rgb" / "000000.jpg"))[..., ::-1].copy()
+    plain = DopeModel(overfit_dope / "last.pt").estimate(image, K)
+    sx, sy = round(320 * 160 / 240) / 320, 1 / 1.5  # DOPE's policy: the shorter side fitted into the 160 px crop
+    last = model.distance[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(float(distance_code(1.2, np.sqrt(K[0, 0] * sx * K[1, 1] * sy))))
+    torch.save({**state, "model": model.state_dict()}, tmp_path / "head.pt")
+    onnx_path, diff = export_checkpoint(tmp_path / "head.pt", tmp_path / "head.onnx")
+    assert diff <= 1e-4 and [o.name for o in onnxruntime.InferenceSession(str(onnx_path)).get_outputs()] == [
+        "beliefs", "affinities", "distance"]
+    for path in (tmp_path / "head.pt", onnx_path):
+        placed = DopeModel(path).estimate(image, K)
+        assert len(placed) == len(plain) >= 2
+        for a, b in zip(placed, plain):
+            np.testing.assert_allclose(a.T[:3, :3], b.T[:3, :3], atol=1e-4)  # ONNX's maps: torch's within 1e-4
+            centre = a.T[:3, :3] @ DopeModel(path).cuboid[8] + a.T[:3, 3]
+            assert centre[2] == pytest.approx(1.2, rel=1e-4)
+            ray = np.linalg.inv(K) @ [*a.keypoints[8], 1.0]
+            np.testing.assert_allclose(centre / centre[2], ray / ray[2], atol=1e-6)
+        unused = DopeModel(path, use_distance_head=False).estimate(image, K)
+        assert all(np.abs(a.T - b.T).max() < 1e-3 for a, b in zip(unused, plain))
 
 
 def test_resumed_training_continues_the_loss_curve_exactly(dope_dataset, tmp_path):

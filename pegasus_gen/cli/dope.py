@@ -88,7 +88,7 @@ def cmd_infer(args) -> int:
 
     options.output_folder(args.out)
     _check_camera(args)
-    model = DopeModel(args.model, device=args.device)
+    model = DopeModel(args.model, device=args.device, use_distance_head=args.distance_head)
     image = _read_image(args.image)
     K = _read_K(args, image.shape[1], image.shape[0])
     depth = None
@@ -123,7 +123,7 @@ def cmd_eval(args) -> int:
     options.output_folder(out)
     if args.bop_results:
         _output_file(args.bop_results, "--bop-results")
-    model = DopeModel(args.model, device=args.device)
+    model = DopeModel(args.model, device=args.device, use_distance_head=args.distance_head)
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
                       min_score=args.min_score, refine=args.depth)
     json_path, png, gallery = write_eval_report(report, out)
@@ -154,7 +154,7 @@ def add_commands(sub) -> None:
     options.add_config_flags(p, TrainConfig, (
         "data", "object", "out", "split", "variant", "batch_norm", "epochs", "batch_size", "size", "focal_px", "lr",
         "schedule", "peak_weight", "symmetry_axis", "min_visibility", "negatives", "augment", "device", "amp",
-        "loader_workers", "seed", "vgg19", "object_size"),
+        "loader_workers", "seed", "vgg19", "object_size", "distance_head"),
         data={"action": "append", "nargs": None, "help": "BOP dataset root or DOPE/NDDS folder (repeatable)"},
         batch_norm={"action": argparse.BooleanOptionalAction},
         object_size={"metavar": ("X", "Y", "Z")}, symmetry_axis={"metavar": ("X", "Y", "Z")})
@@ -173,6 +173,8 @@ def add_commands(sub) -> None:
         p.add_argument("--model", required=True, help="ONNX export (onnxruntime) or training checkpoint .pt (torch)")
         options.add_device(p, default="cpu")
         p.add_argument("--min-score", type=float, default=0.1, help="lowest centroid belief kept")
+        p.add_argument("--no-distance-head", dest="distance_head", action="store_false",
+                       help="place the poses where PnP puts them even when the network has a distance head")
     p = sub.choices["infer"]
     p.add_argument("--image", required=True)
     p.add_argument("--K", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="camera intrinsics, px")
