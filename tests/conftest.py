@@ -97,7 +97,7 @@ def ros_implementation(name: str):
             QoSProfile=compat.QoSProfile, ReliabilityPolicy=compat.ReliabilityPolicy,
             DurabilityPolicy=compat.DurabilityPolicy, exceptions=compat, RCLError=compat.RCLError,
             init=compat.init, message=msgs.message_class, Trigger=msgs.Trigger, serialize=msgs.serialize,
-            deserialize=msgs.deserialize, other_context=lambda: compat.Context(graph=compat.context._default),
+            deserialize=msgs.deserialize, other_context=lambda: compat.Context(graph=compat.context.default_context),
             settle=0.0)
     rclpy = pytest.importorskip("rclpy", reason="real rclpy comes with the ros extra (pip install '.[ros]')")
     from rcl_interfaces.msg import ParameterDescriptor, ParameterValue

@@ -34,21 +34,21 @@ class Context:
             self.wake.notify_all()
 
 
-_default = Context()
+default_context = Context()
 
 
 def init(args=None, context: Context | None = None, domain_id: int | None = None) -> None:
     """Start ``context`` (the default one); ``domain_id`` is accepted as rclpy's (every message stays in-process
     here: no other process is ever met)."""
-    (context or _default).running = True
+    (context or default_context).running = True
 
 
 def ok(context: Context | None = None) -> bool:
-    return (context or _default).running
+    return (context or default_context).running
 
 
 def shutdown(context: Context | None = None) -> None:
-    ctx = context or _default
+    ctx = context or default_context
     ctx.running = False
     ctx.notify()
     if ctx.owns_graph:

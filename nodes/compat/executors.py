@@ -5,7 +5,7 @@ from __future__ import annotations
 import concurrent.futures
 import time
 
-from nodes.compat.context import Context, _default
+from nodes.compat.context import Context, default_context
 from nodes.compat.node import Node
 from nodes.compat.task import Future
 
@@ -14,7 +14,7 @@ class SingleThreadedExecutor:
     """Runs the callbacks of its nodes one at a time in the spinning thread."""
 
     def __init__(self, context: Context | None = None):
-        self.context = context or _default
+        self.context = context or default_context
         self.nodes: list[Node] = []
 
     def add_node(self, node: Node) -> bool:

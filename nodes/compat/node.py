@@ -8,7 +8,7 @@ import time
 import warnings
 
 from nodes.compat.clock import Clock
-from nodes.compat.context import Context, _default
+from nodes.compat.context import Context, default_context
 from nodes.compat.exceptions import (
     InvalidParameterTypeException,
     ParameterAlreadyDeclaredException,
@@ -17,14 +17,10 @@ from nodes.compat.exceptions import (
 )
 from nodes.compat.expand_topic_name import expand_topic_name
 from nodes.compat.parameter import Parameter, ParameterDescriptor, SetParametersResult
-from nodes.compat.qos import _qos
-from nodes.compat.service import Client, Service, _serve
+from nodes.compat.qos import as_qos_profile
+from nodes.compat.service import Client, Service, serve_request
 from nodes.compat.timer import Timer
-from nodes.compat.topics import Publisher, Subscription, TopicEndpointInfo, _check_one_type, _warn_unmatched
-
-
-def create_node(name: str, **kwargs) -> "Node":
-    return Node(name, **kwargs)
+from nodes.compat.topics import Publisher, Subscription, TopicEndpointInfo, check_one_type, warn_unmatched
 
 
 class Node:
@@ -33,7 +29,7 @@ class Node:
 
     def __init__(self, node_name: str, *, context: Context | None = None, parameter_overrides=None,
                  namespace: str = ""):
-        self.context = context or _default
+        self.context = context or default_context
         self._name, self.namespace = node_name, namespace
         self.publishers, self.subscriptions, self.timers = [], [], []
         self.services, self.clients = [], []
@@ -56,24 +52,24 @@ class Node:
         return expand_topic_name(topic, self._name, self.namespace)
 
     def create_publisher(self, msg_type, topic: str, qos_profile) -> Publisher:
-        pub = Publisher(self, msg_type, self.resolve_topic_name(topic), _qos(qos_profile))
+        pub = Publisher(self, msg_type, self.resolve_topic_name(topic), as_qos_profile(qos_profile))
         pub.topic = topic
         with self.context.lock:
-            _check_one_type(self.context, pub)
+            check_one_type(self.context, pub)
             self.context.publishers[pub.topic_name].append(pub)
             for sub in self.context.subscriptions.get(pub.topic_name, []):
-                _warn_unmatched(pub, sub)
+                warn_unmatched(pub, sub)
         self.publishers.append(pub)
         return pub
 
     def create_subscription(self, msg_type, topic: str, callback, qos_profile) -> Subscription:
-        sub = Subscription(self, msg_type, self.resolve_topic_name(topic), callback, _qos(qos_profile))
+        sub = Subscription(self, msg_type, self.resolve_topic_name(topic), callback, as_qos_profile(qos_profile))
         sub.topic = topic
         with self.context.lock:
-            _check_one_type(self.context, sub)
+            check_one_type(self.context, sub)
             self.context.subscriptions[sub.topic_name].append(sub)
             for pub in self.context.publishers.get(sub.topic_name, []):
-                _warn_unmatched(pub, sub)
+                warn_unmatched(pub, sub)
         self.subscriptions.append(sub)
         return sub
 
@@ -207,7 +203,7 @@ class Node:
         for service in self.services:
             while service.requests:
                 request, future, client = service.requests.popleft()
-                work.append((_serve, (service, request, future, client)))
+                work.append((serve_request, (service, request, future, client)))
         for client in self.clients:
             while client.responses:
                 future, response = client.responses.popleft()
@@ -217,3 +213,8 @@ class Node:
     def _next_deadline(self) -> float | None:
         due = [t.next_call for t in self.timers if not t.cancelled]
         return min(due) if due else None
+
+
+def create_node(name: str, **kwargs) -> Node:
+    """rclpy.create_node."""
+    return Node(name, **kwargs)

@@ -33,7 +33,7 @@ qos_profile_sensor_data = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST
 qos_profile_system_default = QoSProfile()
 
 
-def _qos(qos) -> QoSProfile:
+def as_qos_profile(qos) -> QoSProfile:
     return QoSProfile(depth=qos) if isinstance(qos, int) else qos
 
 

@@ -43,7 +43,7 @@ class Client:
 
 
 
-def _serve(service: Service, request, future: Future, client: Client) -> None:
+def serve_request(service: Service, request, future: Future, client: Client) -> None:
     response = service.callback(request, service.srv_type.Response())
     with client.node.context.lock:
         client.responses.append((future, response))

@@ -50,7 +50,7 @@ def matched(pub: Publisher, sub: "Subscription") -> bool:
     return pub.msg_type is sub.msg_type and incompatible_policy(pub.qos, sub.qos) is None
 
 
-def _warn_unmatched(pub: Publisher, sub: "Subscription") -> None:
+def warn_unmatched(pub: Publisher, sub: "Subscription") -> None:
     """Log on both sides, as rclpy's default event handlers do, why ``pub`` and ``sub`` on one topic do not
     match (each names the topic as its node gave it)."""
     if pub.msg_type is not sub.msg_type:
@@ -66,7 +66,7 @@ def _warn_unmatched(pub: Publisher, sub: "Subscription") -> None:
             f"will be sent to it. Last incompatible policy: {policy}")
 
 
-def _check_one_type(context, entity) -> None:
+def check_one_type(context, entity) -> None:
     """RCLError, as Fast DDS's one participant per context gives, when ``entity``'s topic already has an
     endpoint of another type in the same context (in separate contexts, as in separate processes, they only
     do not match)."""
