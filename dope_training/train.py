@@ -208,8 +208,9 @@ def _prepare_output(cfg: TrainConfig, resume: bool) -> dict | None:
     if not (out / "last.pt").is_file():
         raise PegasusError(f"{out}: nothing to resume (no last.pt)")
     state = load_checkpoint(out / "last.pt")
-    before = state["train_config"]
-    differ = sorted(k for k, v in cfg.model_dump(mode="json").items() if k not in RESUMABLE_KEYS and before.get(k) != v)
+    # a run from before a field existed was trained with its default
+    before = {**TrainConfig(data=cfg.data, object=cfg.object).model_dump(mode="json"), **state["train_config"]}
+    differ = sorted(k for k, v in cfg.model_dump(mode="json").items() if k not in RESUMABLE_KEYS and before[k] != v)
     if differ:
         raise PegasusError(f"{out} was trained with another configuration ({', '.join(differ)} differ; see {stored})")
     if state["epoch"] >= cfg.epochs:

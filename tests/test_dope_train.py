@@ -122,9 +122,10 @@ def test_a_distance_head_places_each_pose_on_its_centroids_ray_at_the_distance_i
     for path in (tmp_path / "head.pt", onnx_path):
         placed = DopeModel(path).estimate(image, K)
         assert len(placed) == len(plain) >= 2
+        centre_obj = DopeModel(path).cuboid[8]
         for a, b in zip(placed, plain):
             np.testing.assert_allclose(a.T[:3, :3], b.T[:3, :3], atol=1e-4)  # ONNX's maps: torch's within 1e-4
-            centre = a.T[:3, :3] @ DopeModel(path).cuboid[8] + a.T[:3, 3]
+            centre = a.T[:3, :3] @ centre_obj + a.T[:3, 3]
             assert centre[2] == pytest.approx(1.2, rel=1e-4)
             ray = np.linalg.inv(K) @ [*a.keypoints[8], 1.0]
             np.testing.assert_allclose(centre / centre[2], ray / ray[2], atol=1e-6)
@@ -139,6 +140,11 @@ def test_resumed_training_continues_the_loss_curve_exactly(dope_dataset, tmp_pat
         train(small(dope_dataset, part, epochs=4))
     with pytest.raises(PegasusError, match="variant"):
         train(small(dope_dataset, part, epochs=4, variant="full"), resume=True)
+    older = torch.load(part / "last.pt", weights_only=True)  # as a run from before distance_head existed saved it
+    del older["train_config"]["distance_head"]
+    torch.save(older, part / "last.pt")
+    with pytest.raises(PegasusError, match="distance_head"):
+        train(small(dope_dataset, part, epochs=4, distance_head=True), resume=True)
     resumed = train(small(dope_dataset, part, epochs=4), resume=True)
     a, b = losses(straight), losses(resumed)
     assert len(a) == len(b) == 8 and [r[0] for r in a] == [r[0] for r in b]
