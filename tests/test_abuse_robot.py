@@ -27,6 +27,7 @@ from robot_bridge.sim.controller import SimController
 from robot_bridge.sim.dashboard import MAX_LINE
 from robot_bridge.sim.options import check_settings
 from robot_bridge.sim.process import SimControllerProcess
+from robot_bridge.sim.script import READY, Command, ScriptServer
 from robot_bridge.sim.world import HOME_Q
 
 _hosts = (f"127.0.{os.getpid() % 200 + 20}.{n}" for n in itertools.count(120))
@@ -98,6 +99,30 @@ def test_the_simulator_refuses_what_a_ur_would_refuse_and_never_answers_done(con
     assert "joint 0 = 7.000 rad beyond the joint limit" in log and "joint 0 = 100.000 rad" in log
     assert "rotation vector is 1e+300 rad long" in log and "refused: setTcp [nan" in log
     assert "the TCP would lie 2 m from the flange" in log and "would turn a joint past its limit" in log
+
+
+def test_a_command_left_in_the_register_does_not_run_in_the_next_program():
+    """After a refused command the client clears the register on its RTDE connection and uploads the script
+    again on another; should the script arrive first, the new program must wait for the clear and not run the
+    refused command again (it did, ended at once, and the client's reupload never saw a running program)."""
+    controller = SimController(next(_hosts))  # not started: the cell is ticked by hand
+    try:
+        inputs = controller.state.inputs
+        inputs.update({"input_int_register_0": int(Command.MOVEJ), "input_int_register_1": 0,
+                       "input_double_register_6": 1.0, "input_double_register_7": 2.0})
+        inputs.update({f"input_double_register_{i}": v for i, v in enumerate([7.0, -1.8, 1.8, -1.57, -1.57, 0.0])})
+        ScriptServer(controller)._run_program("rtde_control", "reg_offset_int = 0\n")
+        for _ in range(3):
+            controller.program.tick()
+        assert controller.state.program_running and not any("refused" in line for _, line in controller.log)
+        inputs["input_int_register_0"] = int(Command.NO_CMD)  # the client's clear
+        controller.program.tick()
+        assert controller.state.outputs["output_int_register_0"] == READY
+        inputs["input_int_register_0"] = int(Command.MOVEJ)  # the same command sent anew is refused
+        controller.program.tick()
+        assert not controller.state.program_running and any("joint 0 = 7.000 rad" in line for _, line in controller.log)
+    finally:
+        controller.stop()
 
 
 @pytest.mark.parametrize("args, words", [(["--rate", "0"], "--rate must be a number within"),

@@ -103,7 +103,10 @@ class ControlProgram:
 
     def __init__(self, controller, offset: int):
         self.c, self.offset = controller, offset
-        self.executing = False
+        # A command already in the register was written for the program before this one: the client clears it
+        # on its RTDE connection before it uploads the script, but that may reach us after the script did. The
+        # program waits for the clear (as a UR, whose script compiles first, sees it), so nothing runs twice.
+        self.executing = self._int(0) != Command.NO_CMD
         self.waiting_motion = False  # a synchronous move is running: 'done' when it ends
         self.async_motion = False  # an asynchronous one is: progress 'finished' when it ends
         self.async_writes, self.async_op_id = 0, 0
