@@ -119,3 +119,28 @@ def test_the_distance_head_learns_the_codes_at_the_centroids():
         optimiser.step()
         errors.append(float(((outputs[-1][2] - codes_t).abs() * weight).sum() / weight.sum()))
     assert np.mean(errors[-5:]) < 0.3 * np.mean(errors[:5]), (errors[:5], errors[-5:])
+
+
+def test_the_distance_heads_loss_leaves_the_rest_of_the_network_as_it_is():
+    """The head reads the network detached: with and without the distance term the trunk's and stages'
+    gradients are the same, and the head's own parameters get a gradient only from it."""
+    from dataclasses import replace
+
+    torch.manual_seed(0)
+    model = DopeNetwork(replace(ModelConfig.of("light"), distance_head=True))
+    images, beliefs, affinities = torch.rand(2, 3, 64, 64), torch.rand(2, 9, 8, 8), torch.rand(2, 16, 8, 8)
+    codes, weight = torch.rand(2, 1, 8, 8) + 3.0, torch.rand(2, 1, 8, 8)
+
+    def gradients(with_distance: bool) -> dict[str, torch.Tensor]:
+        model.zero_grad()
+        outputs = model(images)
+        loss = dope_loss(outputs, beliefs, affinities, 0.0, codes if with_distance else None, weight)
+        loss.backward()
+        return {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}
+
+    with_head, without = gradients(True), gradients(False)
+    head = {n for n in with_head if n.startswith("distance.")}
+    assert head and not head & without.keys() and any(with_head[n].abs().sum() > 0 for n in head)
+    assert without.keys() == with_head.keys() - head
+    for name, grad in without.items():
+        torch.testing.assert_close(with_head[name], grad, rtol=0, atol=0)
