@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets
+from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets, mapped_focal
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
@@ -256,7 +256,7 @@ class DopeDataset(torch.utils.data.Dataset):
         beliefs, affinities = make_targets(keypoints, np.ones(keypoints.shape[:2], bool), self.size, self.size,
                                            stride=self.stride, sigma_px=self.sigma_px)
         sample = self.samples[index]
-        focal = np.sqrt(sample.K[0, 0] * sample.K[1, 1] * abs(np.linalg.det(M[:, :2])))  # the crop's, px
+        focal = mapped_focal(sample.K, M[:, :2])  # the crop's, px
         depths = sample.depths if len(sample.depths) == len(keypoints) else np.full(len(keypoints), np.nan)
         distance, weight = make_distance_targets(keypoints[:, 8], distance_code(depths, focal), self.size, self.size,
                                                  self.stride, self.sigma_px)

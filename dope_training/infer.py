@@ -32,7 +32,7 @@ from dope_training.decode import find_keypoints
 from dope_training.model import check_memory, config_from_dict, memory_estimate
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
-from dope_training.targets import STRIDE, distance_from_code, read_map
+from dope_training.targets import STRIDE, distance_from_code, mapped_focal, read_map
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
 
@@ -212,7 +212,7 @@ class DopeModel:
                 continue
             if T is not None and distance is not None:
                 code = read_map(distance, det.keypoints[8], STRIDE)
-                z = float(distance_from_code(code, np.sqrt(K[0, 0] * sx * K[1, 1] * sy)))
+                z = float(distance_from_code(code, mapped_focal(K, np.diag([sx, sy]))))
                 T = on_centroid_ray(T, self.cuboid, keypoints[8], K, dist, z_m=z)
             pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:

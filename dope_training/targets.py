@@ -68,6 +68,12 @@ def read_map(values: np.ndarray, point_px, stride: int) -> float:
     return float(map_coordinates(np.asarray(values, np.float64), [[y], [x]], order=1, mode="nearest")[0])
 
 
+def mapped_focal(K: np.ndarray, linear: np.ndarray) -> float:
+    """The focal length (px) of camera K [3, 3] after its image is mapped by ``linear`` [2, 2] (the linear part
+    of the image-to-network-input map: a crop's affine, a resize's diag(sx, sy)): sqrt(fx fy |det|)."""
+    return float(np.sqrt(K[0, 0] * K[1, 1] * abs(np.linalg.det(linear))))
+
+
 def distance_code(z_m, focal_px: float) -> np.ndarray:
     """The distance code of an object whose centre lies ``z_m`` (m, along the optical axis; any shape) from a
     camera of ``focal_px`` (px, the network input's): log(z * DISTANCE_REF_PX / focal_px)."""
