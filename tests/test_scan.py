@@ -169,6 +169,7 @@ def test_too_few_or_unrelated_photos_fail_clearly_without_an_asset(tmp_path, cap
     assert not library.exists() or not any(library.iterdir())
 
 
+@pytest.mark.slow  # 45-60 s: make test-all (make test stays under 15 min)
 def test_environment_scan_is_level_and_metric(tmp_path, caplog):
     """The board scanned as an environment through the command line (no masks, estimated camera, photos
     matched in sequence): level at z = 0, board-sized. 30 photos, 24 degrees apart on each of two rings: with

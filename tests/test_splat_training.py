@@ -269,6 +269,7 @@ def box_scene():
     return gt, init
 
 
+@pytest.mark.slow  # 45-60 s: make test-all (make test stays under 15 min)
 def test_training_learns_held_out_views(box_scene):
     gt, init = box_scene
     train = _orbit_views(gt, 64, 48, range(0, 360, 30), [20, 50] * 6, masks=False)
