@@ -30,6 +30,7 @@ from robot_bridge.sim.process import SimControllerProcess
 from robot_bridge.sim.script import READY, Command, ScriptServer
 from robot_bridge.sim.world import HOME_Q
 
+BEYOND_LIMIT_Q = [7.0, -1.8, 1.8, -1.57, -1.57, 0.0]  # joint 0 past the UR5's +-2 pi
 _hosts = (f"127.0.{os.getpid() % 200 + 20}.{n}" for n in itertools.count(120))
 
 
@@ -70,7 +71,7 @@ def test_the_simulator_refuses_what_a_ur_would_refuse_and_never_answers_done(con
     try:
         tcp = control.getTCPOffset()
         pose = receive.getActualTCPPose()
-        bad = (lambda c: c.moveJ([7.0, -1.8, 1.8, -1.57, -1.57, 0.0], 1.0, 2.0),
+        bad = (lambda c: c.moveJ(BEYOND_LIMIT_Q, 1.0, 2.0),
                lambda c: c.moveJ([100.0, -1.8, 1.8, -1.57, -1.57, 0.0], 1.0, 2.0),
                lambda c: c.moveL([*pose[:3], 1e300, 0.0, 0.0], 0.1, 0.5),
                lambda c: c.setTcp([np.nan, 0, 0, 0, 0, 0]), lambda c: c.setTcp([2.0, 0, 0, 0, 0, 0]))
@@ -110,7 +111,7 @@ def test_a_command_left_in_the_register_does_not_run_in_the_next_program():
         inputs = controller.state.inputs
         inputs.update({"input_int_register_0": int(Command.MOVEJ), "input_int_register_1": 0,
                        "input_double_register_6": 1.0, "input_double_register_7": 2.0})
-        inputs.update({f"input_double_register_{i}": v for i, v in enumerate([7.0, -1.8, 1.8, -1.57, -1.57, 0.0])})
+        inputs.update({f"input_double_register_{i}": v for i, v in enumerate(BEYOND_LIMIT_Q)})
         ScriptServer(controller)._run_program("rtde_control", "reg_offset_int = 0\n")
         for _ in range(3):
             controller.program.tick()
@@ -215,7 +216,7 @@ def test_a_dashboard_line_is_bounded():
 
 @pytest.mark.skipif(REAL_ROS, reason="runs the node on the stand-in layer")
 @pytest.mark.parametrize("name, value, words", [("table_z", float("nan"), "table_z must be a finite number"),
-                                                ("home", [7.0, -1.8, 1.8, -1.57, -1.57, 0.0], "beyond the joint limit"),
+                                                ("home", BEYOND_LIMIT_Q, "beyond the joint limit"),
                                                 ("basket", [np.nan, 0.0, 0.0], "basket must be 3 finite numbers"),
                                                 ("bbox_size", [0.1, 0.0, 0.1], "bbox_size must be positive"),
                                                 ("speed", float("nan"), "speed nan m/s refused")])

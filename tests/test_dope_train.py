@@ -120,9 +120,9 @@ def test_a_distance_head_places_each_pose_on_its_centroids_ray_at_the_distance_i
     assert diff <= 1e-4 and [o.name for o in onnxruntime.InferenceSession(str(onnx_path)).get_outputs()] == [
         "beliefs", "affinities", "distance"]
     for path in (tmp_path / "head.pt", onnx_path):
-        placed = DopeModel(path).estimate(image, K)
+        model = DopeModel(path)
+        placed, centre_obj = model.estimate(image, K), model.cuboid[8]
         assert len(placed) == len(plain) >= 2
-        centre_obj = DopeModel(path).cuboid[8]
         for a, b in zip(placed, plain):
             np.testing.assert_allclose(a.T[:3, :3], b.T[:3, :3], atol=1e-4)  # ONNX's maps: torch's within 1e-4
             centre = a.T[:3, :3] @ centre_obj + a.T[:3, 3]

@@ -43,10 +43,12 @@ def test_camera_node_publishes_a_folder_over_dds_to_another_process(tmp_path):
         assert arrived, (got, node.poll(), node.stderr.read() if node.poll() is not None else "")
         # the graph names a remote node once its discovery info arrives, which may come after its first messages
         # (until then rmw reports _NODE_NAME_UNKNOWN_)
+        expected = [("camera_node", "sensor_msgs/msg/Image")]
+
         def publishers():
             return [(p.node_name, p.topic_type) for p in probe.get_publishers_info_by_topic("image")]
-        spin_until(executor, lambda: publishers() == [("camera_node", "sensor_msgs/msg/Image")], timeout=30)
-        assert publishers() == [("camera_node", "sensor_msgs/msg/Image")]
+        spin_until(executor, lambda: publishers() == expected, timeout=30)
+        assert publishers() == expected
     finally:
         node.send_signal(signal.SIGINT)
         out, err = node.communicate(timeout=30)
