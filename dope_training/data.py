@@ -209,7 +209,9 @@ class DopeDataset(torch.utils.data.Dataset):
     """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [9, S/8, S/8], affinities [16, S/8, S/8], distance
     [1, S/8, S/8] and its weight [1, S/8, S/8]: ``targets.make_distance_targets`` at the crop's focal length).
 
-    Each item draws its augmentation from a generator seeded by (seed, epoch, index), so runs repeat. A crop
+    Each item draws its augmentation from a generator seeded by (seed, epoch, index), so runs repeat: ``ds[i]``
+    is item i of epoch ``ds.epoch``, ``ds[(epoch, i)]`` that of the given epoch (what a sampler hands the loader's
+    workers, whose copies of the dataset keep the epoch they started with). A crop
     is centred near one of the sample's instances, or, for a share ``negatives`` of the items and for samples
     without instances, on a random point of the image: background, clutter and other objects, where the
     network must learn to find nothing (an instance the crop happens to hold keeps its targets).
@@ -227,11 +229,11 @@ class DopeDataset(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.samples)
 
-    def item(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def item(self, index: int, epoch: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The augmented crop [S, S, 3] uint8 RGB, its keypoints [I, 9, 2] (crop pixels) and the affine
-        [2, 3] from image to crop pixels."""
+        [2, 3] from image to crop pixels, of ``epoch`` (default ``self.epoch``)."""
         sample = self.samples[index]
-        rng = np.random.default_rng([self.seed, self.epoch, index])
+        rng = np.random.default_rng([self.seed, self.epoch if epoch is None else epoch, index])
         image = cv2.imread(str(sample.image), cv2.IMREAD_COLOR)
         if image is None:
             raise PegasusError(f"{sample.image}: cannot read the image")
@@ -251,8 +253,9 @@ class DopeDataset(torch.utils.data.Dataset):
         moved = keypoints @ M[:, :2].T + M[:, 2]
         return crop, moved, M
 
-    def __getitem__(self, index: int):
-        crop, keypoints, M = self.item(index)
+    def __getitem__(self, key: int | tuple[int, int]):
+        epoch, index = key if isinstance(key, tuple) else (self.epoch, key)
+        crop, keypoints, M = self.item(index, epoch)
         beliefs, affinities = make_targets(keypoints, np.ones(keypoints.shape[:2], bool), self.size, self.size,
                                            stride=self.stride, sigma_px=self.sigma_px)
         sample = self.samples[index]

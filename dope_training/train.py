@@ -4,10 +4,11 @@ or CUDA, in one process or under ``torchrun`` (DDP).
 Output folder:
   ``last.pt``            the newest checkpoint (``checkpoint``: model, optimizer, epochs and steps done,
                          model and training config, the object); ``--resume`` continues it
-  ``epoch_NNNN.pt``      the checkpoint after each epoch (``keep_checkpoints`` newest kept)
+  ``epoch_NNNN.pt``      the checkpoint after every ``checkpoint_every`` epochs, at least ``checkpoint_minutes``
+                         apart, and after the last (``keep_checkpoints`` newest kept)
   ``loss.csv``           one row per optimisation step: step, epoch, loss (mean over ranks), images (over
                          all ranks), images_per_s, lr; a resumed run first drops rows past its checkpoint
-  ``loss.png``           the curve (per step and epoch means), redrawn after every epoch
+  ``loss.png``           the curve (per step and epoch means), redrawn with each checkpoint
   ``beliefs/epoch_NNNN.png`` the first training image (no augmentation) with its target and the
                          predicted beliefs of the last stage
   ``train_config.yaml``  the configuration
@@ -56,7 +57,8 @@ from pegasus_gen.io.lock import LOCK_FILE, FolderLock
 from pegasus_gen.io.plots import line_chart
 
 # Keys a resumed run may change; any other difference means another experiment and is refused.
-RESUMABLE_KEYS = {"epochs", "device", "loader_workers", "keep_checkpoints", "checkpoint_every", "out"}
+RESUMABLE_KEYS = {"epochs", "device", "loader_workers", "keep_checkpoints", "checkpoint_every", "checkpoint_minutes",
+                  "out"}
 
 
 SURFACE_SAMPLES = 500  # model surface points a checkpoint carries for depth refinement
@@ -112,8 +114,8 @@ def learning_rate(cfg: TrainConfig, step: int, total_steps: int) -> float:
 
 
 class ShardSampler(torch.utils.data.Sampler):
-    """This rank's share of a permutation of range(n) drawn from (seed, epoch): ranks together visit every
-    index exactly once per epoch."""
+    """This rank's share of a permutation of range(n) drawn from (seed, epoch), as (epoch, index) keys of
+    :class:`DopeDataset`: ranks together visit every index exactly once per epoch."""
 
     def __init__(self, n: int, rank: int = 0, world: int = 1, seed: int = 0):
         self.n, self.rank, self.world, self.seed, self.epoch = n, rank, world, seed, 0
@@ -123,7 +125,7 @@ class ShardSampler(torch.utils.data.Sampler):
 
     def __iter__(self):
         order = np.random.default_rng([self.seed, self.epoch]).permutation(self.n)
-        return iter(order[self.rank::self.world].tolist())
+        return iter((self.epoch, i) for i in order[self.rank::self.world].tolist())
 
     def __len__(self) -> int:
         return len(range(self.rank, self.n, self.world))
@@ -300,8 +302,9 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
-    loader_args = dict(batch_size=cfg.batch_size, sampler=sampler, num_workers=loader_workers(cfg, device),
-                       pin_memory=device.type == "cuda")
+    workers = loader_workers(cfg, device)  # started once: the sampler's keys carry the epoch to them
+    loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=sampler, num_workers=workers,
+                                         pin_memory=device.type == "cuda", persistent_workers=workers > 0)
     still = DopeDataset([next(s for s in samples if s.keypoints)], cfg.size, Augment(enabled=False),
                         focal_px=cfg.focal_px, sigma_px=cfg.sigma_px)
     snapshot_crop = still.item(0)[0]
@@ -320,10 +323,9 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     per_epoch = math.ceil(len(dataset) / world / cfg.batch_size)
     bar = tqdm(total=(cfg.epochs - first_epoch) * len(dataset), unit="img", disable=rank != 0, dynamic_ncols=True)
     model.train()
+    saved_at = time.monotonic()
     for epoch in range(first_epoch, cfg.epochs):
-        dataset.epoch = epoch
         sampler.set_epoch(epoch)
-        loader = torch.utils.data.DataLoader(dataset, **loader_args)
         join = net.join() if world > 1 else contextlib.nullcontext()
         with join:
             t0 = time.perf_counter()
@@ -356,7 +358,9 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
                                 loss=f"{counts[0].item() / counts[1].item():.4g}")
                 rows.append({"step": step, "epoch": epoch, "loss": counts[0].item() / counts[1].item(),
                              "images": counts[1].item(), "images_per_s": rate, "lr": lr})
-        if rank == 0 and ((epoch + 1) % cfg.checkpoint_every == 0 or epoch + 1 == cfg.epochs):
+        due = (epoch + 1) % cfg.checkpoint_every == 0 and time.monotonic() - saved_at >= 60 * cfg.checkpoint_minutes
+        if rank == 0 and (due or epoch + 1 == cfg.epochs):
+            saved_at = time.monotonic()
             _write_losses(out / "loss.csv", rows)
             images.write_image(out / "loss.png", loss_curve(rows))
             images.write_image(out / "beliefs" / f"epoch_{epoch + 1:04d}.png",

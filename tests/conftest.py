@@ -1,5 +1,6 @@
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -47,11 +48,16 @@ def library(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def dope_dataset(library, tmp_path_factory):
-    """A tiny BOP dataset for DOPE: 4 frames (320x240) of 3 red noodle cups seen from 0.28-0.32 m."""
+def dope_dataset(request, tmp_path_factory):
+    """A tiny BOP dataset for DOPE: 4 frames (320x240) of 3 red noodle cups seen from 0.28-0.32 m. Where
+    PEGASUS_TEST_DOPE_DATASET names one made by this fixture elsewhere, that one (a GPU machine without pybullet
+    runs the CUDA training test on a copy)."""
+    if os.environ.get("PEGASUS_TEST_DOPE_DATASET"):
+        return Path(os.environ["PEGASUS_TEST_DOPE_DATASET"])
     from pegasus_gen.dataset.config import load_config
     from pegasus_gen.dataset.generate import generate
 
+    library = request.getfixturevalue("library")
     out = tmp_path_factory.mktemp("ds") / "ds"
     return generate(load_config(None, [f"output={out}", f"library={library.root}", "scenes=1", "frames_per_scene=4",
                                        "camera.width=320", "camera.height=240", "device=cpu",

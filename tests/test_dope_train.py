@@ -16,6 +16,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from dope_training.checkpoint import load_checkpoint
+from dope_training.data import DopeDataset, Sample
 from dope_training.evaluate import (
     Match,
     auc,
@@ -163,8 +164,9 @@ def test_shards_cover_every_index_once_per_epoch():
             for rank in range(world):
                 sampler = ShardSampler(n, rank, world, seed=5)
                 sampler.set_epoch(epoch)
-                shards.append(list(sampler))
-                assert len(sampler) == len(shards[-1])
+                keys = list(sampler)
+                assert len(sampler) == len(keys) and {e for e, _ in keys} <= {epoch}
+                shards.append([i for _, i in keys])
             assert sorted(sum(shards, [])) == list(range(n))
     a, b = ShardSampler(10), ShardSampler(10)
     b.set_epoch(1)
@@ -365,3 +367,24 @@ def test_loader_workers_default_to_the_cores_on_cuda_and_two_on_the_cpu(monkeypa
     assert loader_workers(explicit, torch.device("cuda")) == loader_workers(explicit, torch.device("cpu")) == 5
     with pytest.raises(ValueError):
         TrainConfig(data=["x"], object="o", out="r", loader_workers=-2)
+
+
+def test_a_persistent_loader_draws_each_epochs_own_augmentation(tmp_path):
+    # The loader's workers start once and keep their copy of the dataset: the epoch reaches them only through
+    # the sampler's (epoch, index) keys. Each epoch's batch must be the crops that epoch draws in the main
+    # process (and two epochs must differ), which fails if the workers kept drawing epoch 0's.
+    cv2.imwrite(str(tmp_path / "im.png"), np.random.default_rng(0).integers(0, 255, (120, 160, 3), np.uint8))
+    K = np.array([[150.0, 0, 80], [0, 150.0, 60], [0, 0, 1]])
+    sample = Sample(tmp_path / "im.png", K, [np.array([[80.0, 60.0]] * 9)], [1], [1.0], [0.5])
+    dataset = DopeDataset([sample, sample], size=64)
+    sampler = ShardSampler(len(dataset))
+    loader = torch.utils.data.DataLoader(dataset, batch_size=2, sampler=sampler, num_workers=1,
+                                         persistent_workers=True)
+    seen = []
+    for epoch in range(3):
+        sampler.set_epoch(epoch)
+        (images, *_), = list(loader)
+        expected = torch.stack([dataset[key][0] for key in sampler])
+        assert torch.equal(images, expected)
+        seen.append(images)
+    assert not torch.equal(seen[0], seen[1]) and not torch.equal(seen[1], seen[2])

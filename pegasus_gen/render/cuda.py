@@ -2,13 +2,14 @@
 ``pip install '.[cuda]'``).
 
 Each part of a scene (a SplatCloud) is uploaded once and kept on the GPU while it lives, and a scene's parts
-are concatenated there once while the same parts are rendered again (the frames of a static scene). Per frame:
-colour from gsplat's SH evaluation; the instance labels as one-hot feature channels through the same blend;
+are concatenated there once while the same parts are rendered again (the frames of a static scene), with the
+instance labels as one-hot feature channels. Per frame: colour from gsplat's SH evaluation, blended with the labels;
 depth by the CPU renderer's rule, each splat's depth on a pixel's ray being a plane A + B u + C v over the image
 (:func:`pegasus_gen.render.differentiable.depth_planes`), rendered as three feature channels and evaluated per
 pixel (the CPU's clamp at 3.33 standard deviations of z aside: tests/test_depth_planes.py measures what it
 changes). gsplat samples pixel (u, v) at (u + 0.5, v + 0.5), so the principal point is shifted by +0.5 to keep
-the OpenCV convention of the CPU backend. The images come back to the host in one float32 copy.
+the OpenCV convention of the CPU backend. The images are finished on the GPU (background, depth, label ids) and
+come back to the host in one copy into pinned memory.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import weakref
 import numpy as np
 import torch
 
-from pegasus_gen.render.differentiable import depth_planes
+from pegasus_gen.render.differentiable import depth_planes, world_factor
 
 _PARTS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()  # SplatCloud -> its device tensors
 _SCENE: dict = {}  # the last scene rendered: "parts" (weak references) and its concatenated device tensors
@@ -37,79 +38,98 @@ def _part_on_gpu(cloud, device) -> dict:
     return cached
 
 
-def _scene_on_gpu(parts, label_index, device) -> dict:
+def _scene_on_gpu(parts, label_index, present, device) -> dict:
     """Device tensors of the splats of ``parts`` concatenated (each part uploaded once while it lives; the
     concatenation made again only when the parts differ from the last call's): means [N, 3], quats [N, 4],
-    log_scales [N, 3], scales [N, 3], opacities [N], sh [N, K, 3] (parts of lower SH degree padded with zeros),
-    sh_degree, labels [N] int64 dense label index."""
+    scales [N, 3], opacities [N], sh [N, K, 3] (parts of lower SH degree padded with zeros), sh_degree,
+    means64 [N, 3] and factor64 [N, 3, 3] (float64, :func:`world_factor`: the depth planes' inputs), and
+    features [N, 3 + n_labels + 3] float32, gsplat's feature channels (colour and depth plane, written per
+    frame; the one-hot labels of ``label_index`` written here), present [L] int32 (the labels of the dense
+    indices)."""
     refs = _SCENE.get("parts", ())
-    if len(refs) == len(parts) and all(r() is p for r, p in zip(refs, parts)):
+    if len(refs) == len(parts) and all(r() is p for r, p in zip(refs, parts)) and \
+            np.array_equal(_SCENE["present_host"], present):
         return _SCENE
+    n_labels = max(len(present), 1)
     on_gpu = [_part_on_gpu(p, device) for p in parts]
     k = max(p.sh.shape[1] for p in parts)
 
     def cat(key):
         return torch.cat([g[key] for g in on_gpu])
 
+    means, quats, labels = cat("means"), cat("quats"), torch.from_numpy(np.concatenate(label_index)).to(device)
+    features = torch.zeros((len(means), 3 + n_labels + 3), dtype=torch.float32, device=device)
+    features[torch.arange(len(means), device=device), 3 + labels.long()] = 1.0
     _SCENE.clear()
     _SCENE.update({
-        "parts": tuple(weakref.ref(p) for p in parts),
-        "means": cat("means"), "quats": cat("quats"), "log_scales": cat("log_scales"),
-        "scales": cat("log_scales").exp(), "opacities": torch.sigmoid(cat("opacity_logits")),
+        "parts": tuple(weakref.ref(p) for p in parts), "present_host": np.array(present),
+        "present": torch.from_numpy(np.asarray(present, np.int32)).to(device),
+        "means": means, "quats": quats, "scales": cat("log_scales").exp(),
+        "opacities": torch.sigmoid(cat("opacity_logits")),
         "sh": torch.cat([torch.nn.functional.pad(g["sh"], (0, 0, 0, k - g["sh"].shape[1])) for g in on_gpu]),
         "sh_degree": int(round(k ** 0.5)) - 1,
-        "labels": torch.from_numpy(np.concatenate(label_index)).to(device, torch.int64),
+        # in float64: the planes of needle-like splats lose all their digits to float32's cancellation
+        "means64": means.double(), "factor64": world_factor(quats.double(), cat("log_scales").double()),
+        "features": features,
     })
     return _SCENE
 
 
-def render_gsplat(parts, label_index, n_labels, requested_index, K, T_cam_world, width, height, background,
-                  near, far, eps2d):
-    """Render on CUDA with gsplat.
+def render_gsplat(parts, label_index, present, requested_index, K, T_cam_world, width, height, background,
+                  near, far, eps2d, alpha_min):
+    """Render on CUDA with gsplat; the same outputs as the CPU backend, finished on the GPU and copied to the
+    host once (one pinned buffer, of which the returned arrays are views).
 
-    parts: SplatClouds; label_index: per part [N_i] int32 dense label index (0..n_labels-1);
-    requested_index [R] dense indices (-1: label absent). Returns numpy float32 (rgb [H,W,3] with background,
-    depth_sum [H,W] (sum of w z), alpha [H,W]), label_dense [H,W] int32 (-1 where none), weights [R,H,W] float32.
+    parts: SplatClouds; label_index: per part [N_i] int32 dense label index into ``present`` [L] (the labels
+    present, sorted); requested_index [R] dense indices (-1: label absent); K [3, 3] px; T_cam_world [4, 4];
+    background [3] in [0, 1]; alpha_min: the coverage below which a pixel has no depth. Returns rgb [H, W, 3]
+    float32 in [0, 1], depth [H, W] float32 (m, 0 where none), alpha [H, W] float32, label [H, W] int32 (-1 where
+    none), weights [R, H, W] float32.
     """
     from gsplat import rasterization, spherical_harmonics
 
     parts_kept = [(p, idx) for p, idx in zip(parts, label_index) if len(p)]
     if not parts_kept:
         blank = np.zeros((height, width), np.float32)
-        return (np.broadcast_to(background, (height, width, 3)).astype(np.float32), blank, blank,
+        return (np.broadcast_to(np.asarray(background, np.float32), (height, width, 3)).copy(), blank, blank.copy(),
                 np.full((height, width), -1, np.int32), np.zeros((len(requested_index), height, width), np.float32))
     device = torch.device("cuda")
-    g = _scene_on_gpu([p for p, _ in parts_kept], [idx for _, idx in parts_kept], device)
-    T = torch.tensor(T_cam_world, dtype=torch.float32, device=device)
-    K_gsplat = torch.tensor(K, dtype=torch.float32, device=device)
-    K_gsplat[:2, 2] += 0.5
+    n_labels = max(len(present), 1)
+    g = _scene_on_gpu([p for p, _ in parts_kept], [idx for _, idx in parts_kept], present, device)
+    # the camera and background in one transfer from pinned memory (each pageable copy waits for the GPU)
+    K_gsplat = np.asarray(K, np.float64) + [[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]]
+    packed = torch.empty(28, dtype=torch.float64, pin_memory=True)
+    packed.numpy()[:] = np.concatenate([np.ravel(T_cam_world), K_gsplat.ravel(), background])
+    packed = packed.to(device, non_blocking=True)
+    T64, K_gsplat, bg = packed[:16].reshape(4, 4), packed[16:25].reshape(3, 3).float(), packed[25:].float()
     with torch.no_grad():
-        campos = -T[:3, :3].T @ T[:3, 3]
-        rgb = torch.clamp_min(spherical_harmonics(g["sh_degree"], g["means"] - campos, g["sh"]) + 0.5, 0.0)
-        onehot = torch.nn.functional.one_hot(g["labels"], n_labels).to(torch.float32)
-        # in float64: the planes of needle-like splats lose all their digits to float32's cancellation
-        planes = depth_planes(g["means"].double(), g["quats"].double(), g["log_scales"].double(),
-                              torch.tensor(K, dtype=torch.float64, device=device),
-                              torch.tensor(T_cam_world, dtype=torch.float64, device=device), width, height).float()
+        features = g["features"]
+        campos = (-T64[:3, :3].T @ T64[:3, 3]).float()
+        features[:, :3] = torch.clamp_min(spherical_harmonics(g["sh_degree"], g["means"] - campos, g["sh"]) + 0.5, 0.0)
+        features[:, 3 + n_labels:] = depth_planes(g["means64"], g["factor64"], torch.tensor(K, dtype=torch.float64),
+                                                  T64, width, height)
         colors, alphas, _ = rasterization(
-            g["means"], g["quats"], g["scales"], g["opacities"], torch.cat([rgb, onehot, planes], dim=1),
-            viewmats=T[None], Ks=K_gsplat[None], width=width, height=height, near_plane=near, far_plane=far,
-            eps2d=eps2d, sh_degree=None, packed=False, render_mode="RGB", rasterize_mode="classic")
-        out = colors[0]
-        alpha = alphas[0, ..., 0]
+            g["means"], g["quats"], g["scales"], g["opacities"], features, viewmats=T64.float()[None],
+            Ks=K_gsplat[None], width=width, height=height, near_plane=near, far_plane=far, eps2d=eps2d,
+            sh_degree=None, packed=False, render_mode="RGB", rasterize_mode="classic")
+        out, alpha = colors[0], alphas[0, ..., 0]
+        rgb = (out[..., :3] + (1.0 - alpha)[..., None] * bg).clamp(0.0, 1.0)
         weights = out[..., 3:3 + n_labels]
         best_w, best = weights.max(dim=-1)
-        label = torch.where(best_w > 0, best, torch.full_like(best, -1)).to(torch.float32)
+        label = torch.where(best_w > 0, g["present"][best], -1).int()
         A, B, C = out[..., 3 + n_labels:].unbind(-1)
-        v, u = torch.meshgrid(torch.arange(height, device=device, dtype=torch.float32),
-                              torch.arange(width, device=device, dtype=torch.float32), indexing="ij")
-        bg = torch.tensor(background, dtype=torch.float32, device=device)
-        req = [i for i in requested_index if i >= 0]
-        images = torch.cat([out[..., :3] + (1.0 - alpha)[..., None] * bg, (A + B * u + C * v)[..., None],
-                            alpha[..., None], label[..., None], weights[..., req]], dim=-1).cpu().numpy()
-    req_w = np.zeros((len(requested_index), height, width), np.float32)
-    req_w[[j for j, i in enumerate(requested_index) if i >= 0]] = np.moveaxis(images[..., 6:], -1, 0)
-    return images[..., :3], images[..., 3], images[..., 4], images[..., 5].astype(np.int32), req_w
+        u = torch.arange(width, device=device, dtype=torch.float32)
+        v = torch.arange(height, device=device, dtype=torch.float32)[:, None]
+        depth = torch.where(alpha >= alpha_min, (A + B * u + C * v) / alpha.clamp_min(1e-12), 0.0)
+        req = [weights[..., i] if i >= 0 else torch.zeros_like(alpha) for i in requested_index]
+        flat = torch.cat([rgb.reshape(-1), depth.reshape(-1), alpha.reshape(-1), label.view(torch.float32).reshape(-1),
+                          *(w.reshape(-1) for w in req)])
+        host = torch.empty(flat.shape, dtype=torch.float32, pin_memory=True)
+        host.copy_(flat)
+    images, n = host.numpy(), height * width
+    return (images[:3 * n].reshape(height, width, 3), images[3 * n:4 * n].reshape(height, width),
+            images[4 * n:5 * n].reshape(height, width), images[5 * n:6 * n].view(np.int32).reshape(height, width),
+            images[6 * n:].reshape(len(requested_index), height, width))
 
 
 def smoke_test() -> None:
@@ -119,7 +139,7 @@ def smoke_test() -> None:
     cloud = SplatCloud(np.array([[0.0, 0.0, 2.0]]), np.array([[1.0, 0, 0, 0]]), np.log(np.full((1, 3), 0.1)),
                        np.array([2.0]), np.zeros((1, 1, 3)), np.zeros(1, np.int32))
     K = np.array([[20.0, 0, 7.5], [0, 20.0, 7.5], [0, 0, 1]])
-    _, _, alpha, _, _ = render_gsplat([cloud], [np.zeros(1, np.int32)], 1, [], K, np.eye(4), 16, 16,
-                                      np.zeros(3), 0.01, 1e10, 0.3)
+    _, _, alpha, _, _ = render_gsplat([cloud], [np.zeros(1, np.int32)], np.zeros(1, np.int32), [], K, np.eye(4),
+                                      16, 16, np.zeros(3), 0.01, 1e10, 0.3, 0.5)
     if not (np.isfinite(alpha).all() and alpha.max() > 0.5):
         raise RuntimeError("gsplat rendered a wrong test image")

@@ -141,8 +141,14 @@ def _check_inputs(means, quats_wxyz, log_scales, opacity_logits, sh):
 
 
 # ------------------------------------------------------------------------------ torch backend
-def _camera_factors(means, quats_wxyz, log_scales, K, T_cam_world, width, height):
-    """The EWA projection of splats [N] for one camera (K [3, 3] px, T_cam_world [4, 4]).
+def world_factor(quats_wxyz: torch.Tensor, log_scales: torch.Tensor) -> torch.Tensor:
+    """Per splat the factor M [N, 3, 3] of its world-frame covariance M M^T (m): rotation times scales."""
+    return quat_to_rotmat(quats_wxyz) * torch.exp(log_scales)[:, None, :]
+
+
+def _camera_factors(means, M, K, T_cam_world, width, height):
+    """The EWA projection of splats [N] (centres [N, 3], covariance factors M [N, 3, 3] of
+    :func:`world_factor`) for one camera (K [3, 3] px, T_cam_world [4, 4]).
 
     Returns (z [N] camera-frame depth of the centres (m), RM [N, 3, 3] camera-frame covariance factor (covariance
     RM RM^T, m), U [N, 2, 3] image-plane factor (2D covariance U U^T, px^2, without eps2d), means2d [N, 2]
@@ -159,16 +165,17 @@ def _camera_factors(means, quats_wxyz, log_scales, K, T_cam_world, width, height
     tx = zs * (x / zs).clamp(-lim_x_neg, lim_x_pos)
     ty = zs * (y / zs).clamp(-lim_y_neg, lim_y_pos)
     rz = 1.0 / zs
-    zero = torch.zeros_like(zs)
-    J = torch.stack([fx * rz, zero, -fx * tx * rz * rz,
-                     zero, fy * rz, -fy * ty * rz * rz], dim=-1).reshape(-1, 2, 3)
-    RM = R @ (quat_to_rotmat(quats_wxyz) * torch.exp(log_scales)[:, None, :])  # world covariance = M M^T
+    # one GEMM for R M and the Jacobian's zeros skipped: batched 3x3 products are slow on a GPU (float64 most)
+    RM = torch.einsum("ik,nkj->nij", R, M)
+    U = torch.stack([(fx * rz)[:, None] * RM[:, 0] - (fx * tx * rz * rz)[:, None] * RM[:, 2],
+                     (fy * rz)[:, None] * RM[:, 1] - (fy * ty * rz * rz)[:, None] * RM[:, 2]], dim=1)
     means2d = torch.stack([fx * x * rz + cx, fy * y * rz + cy], dim=-1)
-    return z, RM, J @ RM, means2d
+    return z, RM, U, means2d
 
 
-def depth_planes(means, quats_wxyz, log_scales, K, T_cam_world, width: int, height: int) -> torch.Tensor:
-    """Per splat the plane (A, B, C) [N, 3] of its depth over the image: on pixel (u, v) (OpenCV px) the
+def depth_planes(means, M, K, T_cam_world, width: int, height: int) -> torch.Tensor:
+    """Per splat (centres [N, 3], covariance factors M [N, 3, 3] of :func:`world_factor`) the plane (A, B, C)
+    [N, 3] of its depth over the image: on pixel (u, v) (OpenCV px) the
     splat's depth is A + B u + C v (m), the point of highest density on that pixel's ray in the affine camera
     model of the EWA projection, the depth rule of :func:`pegasus_gen.render.cpu.project` (its ``depth_grad``)
     without its clamp at EXTEND_MAX standard deviations. Blended with the splats' weights, the planes give a
@@ -176,11 +183,10 @@ def depth_planes(means, quats_wxyz, log_scales, K, T_cam_world, width: int, heig
     linearly (gsplat) renders the CPU renderer's depth. Rows of splats behind the camera are finite but
     meaningless.
     """
-    z, RM, U, means2d = _camera_factors(means, quats_wxyz, log_scales, K, T_cam_world, width, height)
-    cov = U @ U.transpose(1, 2)
-    a = cov[:, 0, 0] + GRAD_EPS
-    b = cov[:, 0, 1]
-    c = cov[:, 1, 1] + GRAD_EPS
+    z, RM, U, means2d = _camera_factors(means, M, K, T_cam_world, width, height)
+    a = (U[:, 0] * U[:, 0]).sum(-1) + GRAD_EPS  # the 2D covariance U U^T
+    b = (U[:, 0] * U[:, 1]).sum(-1)
+    c = (U[:, 1] * U[:, 1]).sum(-1) + GRAD_EPS
     cov_uz = (U * RM[:, 2, None, :]).sum(-1)  # [N, 2] covariance of (u, v) with z
     det = a * c - b * b
     dz_du = (c * cov_uz[:, 0] - b * cov_uz[:, 1]) / det
@@ -200,7 +206,7 @@ def project(means, quats_wxyz, log_scales, opacity_logits, sh, K, T_cam_world, w
     """
     R = T_cam_world[:3, :3]
     t = T_cam_world[:3, 3]
-    z, _, U, means2d = _camera_factors(means, quats_wxyz, log_scales, K, T_cam_world, width, height)
+    z, _, U, means2d = _camera_factors(means, world_factor(quats_wxyz, log_scales), K, T_cam_world, width, height)
     valid = (z > near) & (z < far)
     cov = U @ U.transpose(1, 2)
     a = cov[:, 0, 0] + eps2d

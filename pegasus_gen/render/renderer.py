@@ -132,31 +132,33 @@ def render(scene: SplatCloud | Sequence[SplatCloud], K: np.ndarray, T_cam_world:
     backend = _choose_backend(device)
     present, label_index = _dense_labels([p.labels for p in parts])
     requested_index = [int(np.searchsorted(present, r)) if r in present else -1 for r in requested]
-    n_labels = max(len(present), 1)
     if backend == "cuda":
         from pegasus_gen.render import cuda as rasterizer_cuda
 
-        rgb, depth_sum, alpha, label_dense, weights = rasterizer_cuda.render_gsplat(
-            parts, label_index, n_labels, requested_index, K, T, width, height, background, near, far, EPS2D)
+        rgb, depth, alpha, label, weights = rasterizer_cuda.render_gsplat(
+            parts, label_index, present, requested_index, K, T, width, height, background, near, far, EPS2D,
+            alpha_min)
     else:
-        rgb, depth_sum, alpha, label_dense, weights = _render_cpu(
-            parts, label_index, n_labels, requested_index, K, T, width, height, background, near, far)
-    label = np.where(label_dense >= 0, present[np.maximum(label_dense, 0)] if len(present) else -1, -1)
-    depth = np.where(alpha >= alpha_min, depth_sum / np.maximum(alpha, 1e-12), 0.0).astype(np.float32)
-    return RenderOutput(rgb=np.clip(rgb, 0.0, 1.0).astype(np.float32), depth=depth,
-                        alpha=alpha.astype(np.float32), label=label.astype(np.int32), label_weights=weights,
-                        labels=requested, backend=backend)
+        rgb, depth, alpha, label, weights = _render_cpu(
+            parts, label_index, present, requested_index, K, T, width, height, background, near, far, alpha_min)
+    return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, label=label, label_weights=weights, labels=requested,
+                        backend=backend)
 
 
-def _render_cpu(parts, label_index, n_labels, requested_index, K, T, width, height, background, near, far):
-    """Numba backend; returns (rgb, depth_sum, alpha, label_dense, weights) like the CUDA backend."""
+def _render_cpu(parts, label_index, present, requested_index, K, T, width, height, background, near, far,
+                alpha_min):
+    """Numba backend; returns (rgb, depth, alpha, label, weights) as the CUDA backend's ``render_gsplat``."""
     proj = project_cpu(parts, K, T, width, height, near, far)
     lab = np.concatenate(label_index) if label_index else np.zeros(0, np.int32)
-    rgb_img, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
+    rgb, depth_sum, trans, label_dense, weights = rasterizer_cpu.rasterize(
         proj["offsets"], proj["ids"], proj["mean2d"], proj["conic"], proj["depth"], proj["depth_grad"], proj["box"],
-        proj["rgb"], proj["log_opacity"], lab, n_labels, np.asarray(requested_index, dtype=np.int64), width, height,
-        background)
-    return rgb_img, depth_sum, 1.0 - trans, label_dense, weights
+        proj["rgb"], proj["log_opacity"], lab, max(len(present), 1), np.asarray(requested_index, dtype=np.int64),
+        width, height, background)
+    alpha = 1.0 - trans
+    label = np.where(label_dense >= 0, present[np.maximum(label_dense, 0)] if len(present) else -1, -1)
+    depth = np.where(alpha >= alpha_min, depth_sum / np.maximum(alpha, 1e-12), 0.0)
+    return (np.clip(rgb, 0.0, 1.0).astype(np.float32), depth.astype(np.float32), alpha.astype(np.float32),
+            label.astype(np.int32), weights)
 
 
 def project_cpu(parts, K, T, width, height, near=NEAR_PLANE, far=1e10) -> dict:
