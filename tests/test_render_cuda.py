@@ -10,17 +10,20 @@ from pegasus_gen.splats import procedural as synthetic
 pytestmark = [pytest.mark.gpu, pytest.mark.skipif(not cuda_status()[0], reason=f"no CUDA: {cuda_status()[1]}")]
 
 
-@pytest.mark.parametrize("eye,w,h", [([0.7, -0.5, 0.55], 320, 240), ([-0.3, 0.6, 0.9], 320, 240),
-                                     ([0.05, 0.02, 1.2], 320, 240), ([0.7, -0.5, 0.55], 640, 480)])
-def test_cuda_and_cpu_backends_agree(eye, w, h):
+@pytest.mark.parametrize("eye,w,h,antialiased", [([0.7, -0.5, 0.55], 320, 240, False),
+                                                 ([-0.3, 0.6, 0.9], 320, 240, False),
+                                                 ([0.05, 0.02, 1.2], 320, 240, False),
+                                                 ([0.7, -0.5, 0.55], 640, 480, False),
+                                                 ([0.7, -0.5, 0.55], 320, 240, True)])
+def test_cuda_and_cpu_backends_agree(eye, w, h, antialiased):
     rng = np.random.default_rng(0)
     env, objects, poses = synthetic.tabletop_scene(150_000, rng, sh_degree=3)
     scene = [env] + [o.transformed(T) for o, T in zip(objects, poses)]
     K = intrinsics_from_fov(w, h, 55)
     T = look_at(eye, [0, 0, 0.05])
     labels = tuple(range(7))
-    cpu = render(scene, K, T, w, h, background=(0.3, 0.3, 0.3), labels=labels, device="cpu")
-    gpu = render(scene, K, T, w, h, background=(0.3, 0.3, 0.3), labels=labels, device="cuda")
+    cpu, gpu = (render(scene, K, T, w, h, background=(0.3, 0.3, 0.3), labels=labels, device=device,
+                       antialiased=antialiased) for device in ("cpu", "cuda"))
     assert gpu.backend == "cuda"
     assert np.abs(cpu.rgb - gpu.rgb).mean() < 1 / 255
     both = (cpu.depth > 0) & (gpu.depth > 0)

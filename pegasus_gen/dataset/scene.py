@@ -311,7 +311,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             if placed is None or cfg.dynamic:  # static scenes place (and shade) their objects once
                 shading_rng = np.random.default_rng([cfg.seed, scene_id, SHADOW_STREAM, im_id])
                 environment, placed = place_objects(plan, poses, cfg, looks, shading_rng)
-            out = render([environment, *placed], K, T_cam_world, W, H, device=cfg.device)
+            out = render([environment, *placed], K, T_cam_world, W, H, device=cfg.device, antialiased=cfg.antialiased)
             centre = np.mean([poses[i][:3, 3] for i in kept], axis=0)
             rgb, quality = camera_image(out.rgb, cfg, scene_id, im_id, K, cams, centre)
             rgb_name = f"rgb/{im_id:06d}.{cfg.image_format}"

@@ -43,11 +43,15 @@ def frustum_limits(width, height, fx, fy, cx, cy):
 
 @numba.njit(parallel=True, cache=True)
 def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, fy, cx, cy,
-            width, height, near, far, eps2d, valid, mean2d, conic, depth, depth_grad, box, rgb, log_opacity):
+            width, height, near, far, eps2d, antialiased, valid, mean2d, conic, depth, depth_grad, box, rgb,
+            log_opacity):
     """Project splats into the image, writing into the given output arrays (all with N rows).
 
     Inputs: means [N,3], quats [N,4] wxyz, log_scales [N,3], opacity_logits [N], sh [N,K,3] (float32,
-    world frame); R [3,3], t [3] world->camera; cam_center [3] world; fx, fy, cx, cy OpenCV intrinsics.
+    world frame); R [3,3], t [3] world->camera; cam_center [3] world; fx, fy, cx, cy OpenCV intrinsics;
+    antialiased: the opacity scaled by sqrt(det(cov2d) / det(cov2d + eps2d I)) (gsplat's antialiased mode: the
+    low-pass keeps a splat's total weight, so a splat seen edge-on or smaller than a pixel does not widen what it
+    covers).
     Outputs: valid [N] bool (False: culled, other outputs undefined), mean2d [N,2] pixels,
     conic [N,3] (A, B, C of the inverse 2D covariance), depth [N] camera z (m) of the centre,
     depth_grad [N,3] (dz/du, dz/dv in m/px, and a bound in m): the splat's depth at pixel offset (du, dv)
@@ -126,6 +130,10 @@ def project(means, quats, log_scales, opacity_logits, sh, R, t, cam_center, fx, 
             det = a * c - b * b
             if det <= 0.0:
                 continue
+            if antialiased:
+                o *= math.sqrt(max((a - eps2d) * (c - eps2d) - b * b, 0.0) / det)
+                if o < ALPHA_THRESHOLD:
+                    continue
             px = fx * x * rz + cx
             py = fy * y * rz + cy
             extend = min(EXTEND_MAX, math.sqrt(2.0 * (math.log(o) - log_alpha_thr)))

@@ -76,13 +76,14 @@ def _scene_on_gpu(parts, label_index, present, device) -> dict:
 
 
 def render_gsplat(parts, label_index, present, requested_index, K, T_cam_world, width, height, background,
-                  near, far, eps2d, alpha_min):
+                  near, far, eps2d, alpha_min, antialiased=False):
     """Render on CUDA with gsplat; the same outputs as the CPU backend, finished on the GPU and copied to the
     host once (one pinned buffer, of which the returned arrays are views).
 
     parts: SplatClouds; label_index: per part [N_i] int32 dense label index into ``present`` [L] (the labels
     present, sorted); requested_index [R] dense indices (-1: label absent); K [3, 3] px; T_cam_world [4, 4];
-    background [3] in [0, 1]; alpha_min: the coverage below which a pixel has no depth. Returns rgb [H, W, 3]
+    background [3] in [0, 1]; alpha_min: the coverage below which a pixel has no depth; antialiased: gsplat's
+    antialiased mode (the CPU backend's ``antialiased``). Returns rgb [H, W, 3]
     float32 in [0, 1], depth [H, W] float32 (m, 0 where none), alpha [H, W] float32, label [H, W] int32 (-1 where
     none), weights [R, H, W] float32.
     """
@@ -111,7 +112,8 @@ def render_gsplat(parts, label_index, present, requested_index, K, T_cam_world, 
         colors, alphas, _ = rasterization(
             g["means"], g["quats"], g["scales"], g["opacities"], features, viewmats=T64.float()[None],
             Ks=K_gsplat[None], width=width, height=height, near_plane=near, far_plane=far, eps2d=eps2d,
-            sh_degree=None, packed=False, render_mode="RGB", rasterize_mode="classic")
+            sh_degree=None, packed=False, render_mode="RGB",
+            rasterize_mode="antialiased" if antialiased else "classic")
         out, alpha = colors[0], alphas[0, ..., 0]
         rgb = (out[..., :3] + (1.0 - alpha)[..., None] * bg).clamp(0.0, 1.0)
         weights = out[..., 3:3 + n_labels]
