@@ -15,8 +15,9 @@ and for scoring the split's ground truth. Steps, each with its time:
    every scene (target and clutter of the others), 2-6 procedural distractors, the three built-in environments
    (half of the scenes repainted with a random texture), generate's shadows and appearance randomisation,
    cameras ``--distance`` m from the objects at 20-75 degrees elevation, motion blur of at most 5 % of the
-   image motion between frames (``SHUTTER``), half of the objects dropped standing (``UPRIGHT``), rendered at
-   the recipe's network scale (``dope_training.recipe``) with the real camera's shape, and ``--generate``
+   image motion between frames (``SHUTTER``), half of the objects dropped standing (``UPRIGHT``), rendered
+   antialiased (the meshes' splats otherwise look larger than the objects: docs/TRAINING.md) at the recipe's
+   network scale (``dope_training.recipe``) with the real camera's shape, and ``--generate``
    overrides on top; and a
    synthetic held-out set (another seed, 24 frames). A finished dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
@@ -167,7 +168,7 @@ def main() -> int:
               f"min_objects={len(ids)}", f"frames_per_scene={FRAMES_PER_SCENE}", "distractors.count=[2, 6]",
               "appearance.retexture=0.5", f"appearance.shutter={SHUTTER}",
               f"trajectory.distance=[{args.distance[0]}, {args.distance[1]}]",
-              "trajectory.elevation_deg=[20, 75]", f"upright={UPRIGHT}",
+              "trajectory.elevation_deg=[20, 75]", f"upright={UPRIGHT}", "antialiased=true",
               f"device={'cuda' if args.device == 'cuda' else 'cpu'}",
               *(f"camera.{k}={v}" for k, v in cam.items()), *args.generate]
     data = make_dataset(out / "data", [*common, f"scenes={args.frames // FRAMES_PER_SCENE}", f"seed={args.seed}"])
