@@ -4,8 +4,8 @@ or CUDA, in one process or under ``torchrun`` (DDP).
 Output folder:
   ``last.pt``            the newest checkpoint (``checkpoint``: model, optimizer, epochs and steps done,
                          model and training config, the object); ``--resume`` continues it
-  ``epoch_NNNN.pt``      the checkpoint after every ``checkpoint_every`` epochs, at least ``checkpoint_minutes``
-                         apart, and after the last (``keep_checkpoints`` newest kept)
+  ``epoch_NNNN.pt``      the checkpoint after the first epoch, then every ``checkpoint_every`` epochs at least
+                         ``checkpoint_minutes`` apart, and after the last (``keep_checkpoints`` newest kept)
   ``loss.csv``           one row per optimisation step: step, epoch, loss (mean over ranks), images (over
                          all ranks), images_per_s, lr; a resumed run first drops rows past its checkpoint
   ``loss.png``           the curve (per step and epoch means), redrawn with each checkpoint
@@ -323,7 +323,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     per_epoch = math.ceil(len(dataset) / world / cfg.batch_size)
     bar = tqdm(total=(cfg.epochs - first_epoch) * len(dataset), unit="img", disable=rank != 0, dynamic_ncols=True)
     model.train()
-    saved_at = time.monotonic()
+    saved_at = -math.inf  # the first epoch is kept whatever its length: a run that fails later can resume
     for epoch in range(first_epoch, cfg.epochs):
         sampler.set_epoch(epoch)
         join = net.join() if world > 1 else contextlib.nullcontext()

@@ -64,9 +64,9 @@ class TrainConfig(BaseModel):
     keep_checkpoints: int = Field(3, gt=0, description="newest epoch checkpoints kept")
     checkpoint_every: int = Field(1, gt=0, description="epochs between checkpoints, belief snapshots and "
                                                        "loss.png (and the last epoch)")
-    checkpoint_minutes: float = Field(5.0, ge=0.0, description="and at least this many minutes between them (a "
-                                      "full network's checkpoint is ~600 MB; on a GPU an epoch can take seconds); "
-                                      "0: every checkpoint_every epochs")
+    checkpoint_minutes: float = Field(5.0, ge=0.0, description="and, after the first epoch's, at least this many "
+                                      "minutes between them (a full network's checkpoint is ~600 MB; on a GPU an "
+                                      "epoch can take seconds); 0: every checkpoint_every epochs")
 
     @model_validator(mode="after")
     def _variant_defaults(self) -> "TrainConfig":
