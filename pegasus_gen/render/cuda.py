@@ -57,19 +57,20 @@ def _scene_on_gpu(parts, label_index, present, device) -> dict:
     def cat(key):
         return torch.cat([g[key] for g in on_gpu])
 
-    means, quats, labels = cat("means"), cat("quats"), torch.from_numpy(np.concatenate(label_index)).to(device)
+    means, quats, log_scales = cat("means"), cat("quats"), cat("log_scales")
+    labels = torch.from_numpy(np.concatenate(label_index)).to(device)
     features = torch.zeros((len(means), 3 + n_labels + 3), dtype=torch.float32, device=device)
     features[torch.arange(len(means), device=device), 3 + labels.long()] = 1.0
     _SCENE.clear()
     _SCENE.update({
         "parts": tuple(weakref.ref(p) for p in parts), "present_host": np.array(present),
         "present": torch.from_numpy(np.asarray(present, np.int32)).to(device),
-        "means": means, "quats": quats, "scales": cat("log_scales").exp(),
+        "means": means, "quats": quats, "scales": log_scales.exp(),
         "opacities": torch.sigmoid(cat("opacity_logits")),
         "sh": torch.cat([torch.nn.functional.pad(g["sh"], (0, 0, 0, k - g["sh"].shape[1])) for g in on_gpu]),
         "sh_degree": int(round(k ** 0.5)) - 1,
         # in float64: the planes of needle-like splats lose all their digits to float32's cancellation
-        "means64": means.double(), "factor64": world_factor(quats.double(), cat("log_scales").double()),
+        "means64": means.double(), "factor64": world_factor(quats.double(), log_scales.double()),
         "features": features,
     })
     return _SCENE
