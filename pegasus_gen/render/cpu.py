@@ -27,6 +27,8 @@ EXTEND_MAX = 3.33  # pixel-box half size in standard deviations, at most
 TILE = 16
 NEAR_PLANE = 0.01  # metres, as gsplat
 EPS2D = 0.3  # pixels^2 added to the 2D covariance diagonal (anti-aliasing low-pass), as 3DGS
+# the antialiased mode's low-pass: Mip-Splatting's 2D filter (a Gaussian of 0.1 px^2 standing for a one-pixel box)
+EPS2D_ANTIALIASED = 0.1
 PROJECT_CHUNK = 4096  # splats per parallel work item in project()
 GRAD_EPS = 1e-3  # px^2 added to the undilated 2D covariance before the depth gradient inverts it
 
