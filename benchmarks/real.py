@@ -77,7 +77,7 @@ HELD_OUT_FRAMES = 60  # the detection score is set on them: 24 frames (run Q) le
 # frame count, and at 8 frames per scene (median 46 px of image motion per frame at 640x480) generate's default
 # (up to 30 %) smeared the object by up to 45 px, far more than a real camera's exposure does; the streak is kept
 # at most 5 % of 8-frame scenes' motion per frame
-SHUTTER = f"[0.0, {0.05 * (FRAMES_PER_SCENE - 1) / 7:.4f}]"
+SHUTTER = f"[0.0, {0.05 * (FRAMES_PER_SCENE - 1) / (8 - 1):.4f}]"
 # half of the objects spawned standing as their model stands (z up: scans and BOP models are), half in a random
 # orientation: dropped at random, an upright object rests on its side most of the time (the ape stood in 10 % of
 # its frames) while the photos show it standing, and its network then mistook its orientation (by more than 90
@@ -177,8 +177,8 @@ def main() -> int:
               f"device={'cuda' if args.device == 'cuda' else 'cpu'}",
               *(f"camera.{k}={v}" for k, v in cam.items()), *args.generate]
     data = make_dataset(out / "data", [*common, f"scenes={args.frames // FRAMES_PER_SCENE}", f"seed={args.seed}"])
-    held_out = make_dataset(out / "held_out", [*common, f"scenes={HELD_OUT_FRAMES // FRAMES_PER_SCENE}",
-                                                    f"seed={args.seed + 1000}"])
+    held_out = make_dataset(out / "held_out",
+                            [*common, f"scenes={HELD_OUT_FRAMES // FRAMES_PER_SCENE}", f"seed={args.seed + 1000}"])
     times["generate"] = time.monotonic() - t0
 
     rows = {}

@@ -33,6 +33,11 @@ PROJECT_CHUNK = 4096  # splats per parallel work item in project()
 GRAD_EPS = 1e-3  # px^2 added to the undilated 2D covariance before the depth gradient inverts it
 
 
+def low_pass(antialiased: bool) -> float:
+    """The 2D covariance's low-pass (px^2) of a render mode: EPS2D classic, EPS2D_ANTIALIASED antialiased."""
+    return EPS2D_ANTIALIASED if antialiased else EPS2D
+
+
 @numba.njit(cache=True)
 def frustum_limits(width, height, fx, fy, cx, cy):
     """(x_neg, x_pos, y_neg, y_pos): bounds of x/z and y/z used in the EWA Jacobian. gsplat clamps the

@@ -18,7 +18,7 @@ import numpy as np
 
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.render import cpu as rasterizer_cpu
-from pegasus_gen.render.cpu import EPS2D, EPS2D_ANTIALIASED, NEAR_PLANE
+from pegasus_gen.render.cpu import NEAR_PLANE, low_pass
 from pegasus_gen.splats.cloud import SplatCloud, is_rigid
 
 log = logging.getLogger("pegasus.render")
@@ -142,7 +142,7 @@ def render(scene: SplatCloud | Sequence[SplatCloud], K: np.ndarray, T_cam_world:
 
         rgb, depth, alpha, label, weights = rasterizer_cuda.render_gsplat(
             parts, label_index, present, requested_index, K, T, width, height, background, near, far,
-            EPS2D_ANTIALIASED if antialiased else EPS2D, alpha_min, antialiased)
+            low_pass(antialiased), alpha_min, antialiased)
     else:
         rgb, depth, alpha, label, weights = _render_cpu(
             parts, label_index, present, requested_index, K, T, width, height, background, near, far, alpha_min,
@@ -185,8 +185,7 @@ def project_cpu(parts, K, T, width, height, near=NEAR_PLANE, far=1e10, antialias
         if end > start:
             rasterizer_cpu.project(
                 part.means, part.quats_wxyz, part.log_scales, part.opacity_logits, part.sh,
-                R, t, cam_center, fx, fy, cx, cy, width, height, near, far,
-                EPS2D_ANTIALIASED if antialiased else EPS2D, antialiased,
+                R, t, cam_center, fx, fy, cx, cy, width, height, near, far, low_pass(antialiased), antialiased,
                 *(out[k][start:end] for k in ("valid", "mean2d", "conic", "depth", "depth_grad", "box", "rgb",
                                               "log_opacity")))
         start = end
