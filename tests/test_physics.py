@@ -5,11 +5,15 @@ import pybullet as pb
 import pytest
 from scipy.spatial.transform import Rotation
 
+from pegasus_gen.assets.library import DropRegion
 from pegasus_gen.dataset.physics import (
+    PACKED_FILL,
     UPRIGHT_TILT_DEG,
     PhysicsParams,
     World,
+    bounding_radius,
     drop_objects,
+    packed_region,
     random_quat_xyzw,
     upright_quat_xyzw,
 )
@@ -111,3 +115,37 @@ def test_objects_spawned_upright_come_to_rest_standing(library):
     # measured: 9 of 9 standing when spawned upright (one falling over onto another is possible), 2 of 9 when not
     assert np.mean([share for upright, share in standing if upright]) >= 0.85
     assert np.mean([share for upright, share in standing if not upright]) < 0.5
+
+
+def test_packed_region_is_a_square_of_the_objects_area_inside_the_drop_region(library):
+    objects = [library.get(i) for i in (1, 5, 7, 8)]
+    area = sum(np.pi * bounding_radius(o) ** 2 for o in objects) / PACKED_FILL
+    wide = DropRegion(x_min=-1.0, x_max=2.0, y_min=-0.5, y_max=1.5)
+    rng = np.random.default_rng(0)
+    squares = [packed_region(wide, objects, rng) for _ in range(200)]
+    for r in squares:
+        assert r.x_max - r.x_min == pytest.approx(np.sqrt(area)) == pytest.approx(r.y_max - r.y_min)
+        assert wide.x_min <= r.x_min and r.x_max <= wide.x_max and wide.y_min <= r.y_min and r.y_max <= wide.y_max
+    centres = np.array([[(r.x_min + r.x_max) / 2, (r.y_min + r.y_max) / 2] for r in squares])
+    assert np.ptp(centres, axis=0).min() > 0.8 * (1.0 - np.sqrt(area))  # anywhere in the narrower side's room
+    narrow = DropRegion(x_min=0.0, x_max=0.1, y_min=-0.5, y_max=1.5)  # narrower than the square: the whole width
+    r = packed_region(narrow, objects, rng)
+    assert (r.x_min, r.x_max) == (0.0, 0.1) and r.y_max - r.y_min == pytest.approx(np.sqrt(area))
+
+
+def test_objects_dropped_packed_rest_closer_together(library):
+    env = library.get("wooden_table")
+    objects = [library.get(i) for i in (1, 5, 7, 8)]
+
+    def spread(region_of):
+        result = drop_objects(env, objects, np.random.default_rng(seed), region=region_of(seed))
+        xy = np.array([T[:2, 3] for T in result.poses.values()])
+        return np.mean([np.linalg.norm(a - b) for k, a in enumerate(xy) for b in xy[k + 1:]])
+
+    scattered, packed = [], []
+    for seed in range(3):
+        scattered.append(spread(lambda s: None))
+        packed.append(spread(lambda s: packed_region(env.manifest.drop_region, objects, np.random.default_rng(s))))
+    side = np.sqrt(sum(np.pi * bounding_radius(o) ** 2 for o in objects) / PACKED_FILL)
+    assert np.mean(packed) < 0.6 * np.mean(scattered)
+    assert max(packed) < 1.5 * side  # a settled pile spreads a little beyond its square, not across the table

@@ -199,6 +199,10 @@ class GenerateConfig(_Strict):
     # share of the objects (not the distractors) spawned standing as their asset stands (z up, any turn about z,
     # leaning at most 10 degrees) instead of in a uniformly random orientation; all of them then drop and settle
     upright: float = Field(default=0.0, ge=0.0, le=1.0)
+    # share of the scenes whose objects and distractors are dropped packed together (a square of the drop region
+    # of their bounding circles' area, physics.packed_region): they come to rest touching and stacked, and hide
+    # one another
+    packed: float = Field(default=0.0, ge=0.0, le=1.0)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     # render with Mip-Splatting's 2D filter (render()'s antialiased): the flat splats of imported meshes, seen
     # edge-on at a silhouette, then widen it less (an LM-O object's render at 32 px across: 7.4 % larger than its

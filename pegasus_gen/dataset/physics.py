@@ -12,7 +12,7 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pegasus_gen.assets.library import Asset
+from pegasus_gen.assets.library import Asset, DropRegion
 from pegasus_gen.dataset.distractors import Distractor
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.bullet import quiet_pybullet
@@ -144,17 +144,38 @@ class World:
         pb.stepSimulation(physicsClientId=self.client)
 
 
+def bounding_radius(body: Asset | Distractor) -> float:
+    """The radius (m) of the sphere about the body's frame origin that holds its collision mesh."""
+    return float(np.linalg.norm(body.mesh.vertices, axis=1).max())
+
+
+PACKED_FILL = 1.0  # the objects' bounding circles' area over a packed region's (more than ~0.55 stacks some)
+
+
+def packed_region(region: DropRegion, objects: list[Asset | Distractor], rng: np.random.Generator) -> DropRegion:
+    """A square inside ``region`` (at a uniformly random place; the whole region where the square does not fit)
+    whose area is the objects' bounding circles' over ``PACKED_FILL``: dropped there, they come to rest close
+    together and hide one another from most views, as on a cluttered desk."""
+    side = float(np.sqrt(sum(np.pi * bounding_radius(o) ** 2 for o in objects) / PACKED_FILL))
+    corner = []
+    for lo, hi in ((region.x_min, region.x_max), (region.y_min, region.y_max)):
+        corner.append((lo, hi) if hi - lo <= side else (c := rng.uniform(lo, hi - side), c + side))
+    (x_min, x_max), (y_min, y_max) = corner
+    return DropRegion(x_min=x_min, x_max=x_max, y_min=y_min, y_max=y_max)
+
+
 def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.random.Generator,
-                params: PhysicsParams = PhysicsParams(), orientations: Sequence | None = None) -> list[np.ndarray]:
-    """Non-overlapping T_world_obj above the environment's drop region: object k turned by ``orientations[k]``
-    (a quaternion [4] x, y, z, w, one entry per object) where given and not None, else by a uniformly random
-    rotation.
+                params: PhysicsParams = PhysicsParams(), orientations: Sequence | None = None,
+                region: DropRegion | None = None) -> list[np.ndarray]:
+    """Non-overlapping T_world_obj above ``region`` (default: the environment's drop region): object k turned by
+    ``orientations[k]`` (a quaternion [4] x, y, z, w, one entry per object) where given and not None, else by a
+    uniformly random rotation.
 
     Objects that do not fit side by side are stacked in layers above each other.
     """
-    region = environment.manifest.drop_region
+    region = region or environment.manifest.drop_region
     support = environment.manifest.support_height
-    radii = [float(np.linalg.norm(a.mesh.vertices, axis=1).max()) for a in objects]
+    radii = [bounding_radius(a) for a in objects]
     placed: list[tuple[np.ndarray, float]] = []
     poses = []
     layer_base = support + params.drop_clearance
@@ -177,15 +198,16 @@ def spawn_poses(environment: Asset, objects: list[Asset | Distractor], rng: np.r
 
 def drop_objects(environment: Asset, objects: list[Asset | Distractor], rng: np.random.Generator,
                  params: PhysicsParams = PhysicsParams(), record_fps: float | None = None,
-                 orientations: Sequence | None = None) -> DropResult:
-    """Drop ``objects`` onto ``environment`` (spawned turned by ``orientations``, see :func:`spawn_poses`) and
-    simulate until all rest (or ``max_time``).
+                 orientations: Sequence | None = None, region: DropRegion | None = None) -> DropResult:
+    """Drop ``objects`` onto ``environment`` (spawned over ``region`` turned by ``orientations``, see
+    :func:`spawn_poses`) and simulate until all rest (or ``max_time``).
 
     With ``record_fps`` the poses are recorded at that rate from the spawn on (a dynamic scene).
     Objects that end below the support (fell off) are removed and listed in ``removed``.
     """
     with World(environment, params) as world:
-        for i, (asset, T) in enumerate(zip(objects, spawn_poses(environment, objects, rng, params, orientations))):
+        spawned = spawn_poses(environment, objects, rng, params, orientations, region)
+        for i, (asset, T) in enumerate(zip(objects, spawned)):
             world.add(i, asset, T)
         steps_per_frame = None if not record_fps else max(1, int(round(1.0 / (record_fps * params.time_step))))
         trajectory = []

@@ -33,7 +33,7 @@ from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import GenerateConfig
 from pegasus_gen.dataset.distractors import Distractor, make_distractor
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
-from pegasus_gen.dataset.physics import DropResult, drop_objects, upright_quat_xyzw
+from pegasus_gen.dataset.physics import DropResult, drop_objects, packed_region, upright_quat_xyzw
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats import bop
 from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
@@ -48,7 +48,8 @@ from pegasus_gen.splats.colour import blend_colour, shade_lambert, transform_col
 
 # random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
 # switching shadows or randomisation on changes no object, pose or camera
-SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM, LIGHT_STREAM, UPRIGHT_STREAM = 1, 2, 3, 4, 5, 6
+(SHADOW_STREAM, APPEARANCE_STREAM, CAMERA_STREAM, DISTRACTOR_STREAM, LIGHT_STREAM, UPRIGHT_STREAM,
+ PACKED_STREAM) = 1, 2, 3, 4, 5, 6, 7
 
 
 
@@ -138,9 +139,12 @@ def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
     upright_rng = np.random.default_rng([cfg.seed, scene_id, UPRIGHT_STREAM])
     orientations = [upright_quat_xyzw(upright_rng) if upright_rng.random() < cfg.upright else None for _ in objects]
     orientations += [None] * len(distractors)  # distractors fall in a random orientation
+    packed_rng = np.random.default_rng([cfg.seed, scene_id, PACKED_STREAM])
+    region = (packed_region(env.manifest.drop_region, objects + distractors, packed_rng)
+              if packed_rng.random() < cfg.packed else None)
     for _ in range(DROP_ATTEMPTS):  # the same draws as before unless every target fell off
         drop = drop_objects(env, objects + distractors, rng, record_fps=cfg.fps if cfg.dynamic else None,
-                            orientations=orientations)
+                            orientations=orientations, region=region)
         if any(i < len(objects) for i in drop.poses):
             break
     return ScenePlan(env, objects + distractors, len(objects), drop, rng)
