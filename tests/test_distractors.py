@@ -7,10 +7,12 @@ import numpy as np
 from test_generate import config
 
 from pegasus_gen.dataset.config import DistractorConfig
-from pegasus_gen.dataset.distractors import make_distractor
+from pegasus_gen.dataset.distractors import PALETTE_SPLATS, make_distractor, object_palette
 from pegasus_gen.dataset.generate import generate
 from pegasus_gen.dataset.scene import camera_matrix, load_assets, plan_scene
 from pegasus_gen.dataset.validate import validate
+from pegasus_gen.splats import sh
+from pegasus_gen.splats.surface_splats import surface_splats
 
 
 def test_distractors_are_closed_convex_solids_of_the_asked_size():
@@ -66,3 +68,29 @@ def test_a_distractor_is_dropped_rendered_and_never_annotated(library, tmp_path)
                     extent = np.ptp(plan.objects[i].surface.vertices, axis=0).max()
                     seen += abs(depth[v, u] - p[2]) < extent
     assert seen >= 3
+
+
+def test_object_coloured_distractors_wear_the_palette_and_change_nothing_when_off():
+    palette = np.array([[0.9, 0.8, 0.1], [0.7, 0.1, 0.1]])
+    painted = [make_distractor(DistractorConfig(object_colours=1.0), np.random.default_rng(s), 0, palette)
+               for s in range(8)]
+    for d in painted:  # every splat in one of the palette's colours (base colour, SH DC)
+        rgb = 0.5 + sh.C0 * d.splats.sh[:, 0].astype(np.float64)
+        assert np.abs(rgb[:, None, :] - palette[None]).max(axis=2).min(axis=1).max() < 1e-4
+    assert any(np.ptp(d.splats.sh[:, 0], axis=0).max() < 1e-6 for d in painted)  # one colour: plain
+    off = make_distractor(DistractorConfig(), np.random.default_rng(3), 0, palette)
+    plain = make_distractor(DistractorConfig(), np.random.default_rng(3), 0)
+    assert np.array_equal(off.splats.sh, plain.splats.sh) and np.array_equal(off.splats.means, plain.splats.means)
+
+
+def test_object_palette_holds_each_clouds_base_colours():
+    rng = np.random.default_rng(0)
+    clouds = []  # surface splats of two known colours
+    for colour in ([0.9, 0.1, 0.1], [0.1, 0.2, 0.9]):
+        points = rng.uniform(-0.05, 0.05, (500, 3))
+        normals = points / np.linalg.norm(points, axis=1, keepdims=True)
+        clouds.append(surface_splats(points, normals, np.tile(colour, (500, 1)), 0.004, rng))
+    palette = object_palette(clouds, rng)
+    assert palette.shape == (2 * PALETTE_SPLATS, 3)
+    assert np.allclose(palette[:PALETTE_SPLATS], [0.9, 0.1, 0.1], atol=1e-4)
+    assert np.allclose(palette[PALETTE_SPLATS:], [0.1, 0.2, 0.9], atol=1e-4)

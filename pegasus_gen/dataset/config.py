@@ -166,6 +166,9 @@ class DistractorConfig(_Strict):
 
     count: tuple[int, int] = (1, 3)  # per scene, inclusive range
     size: Annotated[Range, _range(0.01, 1.0)] = (0.04, 0.14)  # m, the largest extent
+    # share of the distractors painted in one or two colours of the scene's objects' splats instead of random ones:
+    # hard negatives, the objects' colour without their shape
+    object_colours: float = Field(default=0.0, ge=0.0, le=1.0)
 
     @model_validator(mode="after")
     def _count(self):

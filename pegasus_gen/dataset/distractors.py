@@ -1,4 +1,5 @@
-"""Distractors: procedural clutter (boxes, cylinders, spheres with random textures) dropped with the objects.
+"""Distractors: procedural clutter (boxes, cylinders, spheres with random textures, or painted in the objects'
+colours) dropped with the objects.
 
 They are physical (they collide, fall, occlude and cast shadows) and rendered, but never labelled: they
 have no model in ``models/``, so the dataset's scene_gt, gt_info, COCO and DOPE files leave them out
@@ -15,6 +16,7 @@ import numpy as np
 import trimesh
 
 from pegasus_gen.dataset.config import DistractorConfig
+from pegasus_gen.splats import sh
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.procedural import random_texture
 from pegasus_gen.splats.surface_splats import surface_splats
@@ -40,8 +42,23 @@ class Distractor:
         return self.surface
 
 
-def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int) -> Distractor:
-    """A random box, cylinder or sphere whose largest extent is drawn from ``cfg.size`` (m), textured."""
+PALETTE_SPLATS = 256  # splat colours drawn from each object for the distractors' palette
+
+
+def object_palette(clouds: list[SplatCloud], rng: np.random.Generator) -> np.ndarray:
+    """rgb [P, 3] (0..1): the base (view-independent) colours of ``PALETTE_SPLATS`` random splats of each cloud."""
+    dc = np.concatenate([c.sh[rng.integers(len(c), size=PALETTE_SPLATS), 0] for c in clouds])
+    return np.clip(0.5 + sh.C0 * dc, 0.0, 1.0)
+
+
+def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int,
+                    palette: np.ndarray | None = None) -> Distractor:
+    """A random box, cylinder or sphere whose largest extent is drawn from ``cfg.size`` (m), textured: with
+    probability ``cfg.object_colours`` (and a ``palette`` [P, 3] of the scene's objects' colours) in one or two
+    of the palette's colours, a look-alike of the objects' colour without their shape; else in random colours."""
+    colours = None
+    if cfg.object_colours > 0 and palette is not None and rng.random() < cfg.object_colours:
+        colours = palette[rng.integers(len(palette), size=int(rng.integers(1, 3)))]
     size = rng.uniform(*cfg.size)
     kind = ("box", "cylinder", "sphere")[int(rng.integers(3))]
     if kind == "box":
@@ -55,5 +72,5 @@ def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int)
     count = max(200, int(surface.area / SPACING**2))
     points, faces = trimesh.sample.sample_surface(surface, count, seed=int(rng.integers(2**31)))
     normals = surface.face_normals[faces]
-    splats = surface_splats(points, normals, random_texture(rng, TEXTURE_PERIOD)(points), SPACING, rng)
+    splats = surface_splats(points, normals, random_texture(rng, TEXTURE_PERIOD, colours)(points), SPACING, rng)
     return Distractor(f"distractor_{index}_{kind}", splats, surface, float(surface.volume * rng.uniform(*DENSITY)))

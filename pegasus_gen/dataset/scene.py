@@ -31,7 +31,7 @@ from pegasus_gen.dataset.appearance import (
 )
 from pegasus_gen.dataset.coco import CocoInstance, scene_coco
 from pegasus_gen.dataset.config import GenerateConfig
-from pegasus_gen.dataset.distractors import Distractor, make_distractor
+from pegasus_gen.dataset.distractors import Distractor, make_distractor, object_palette
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
 from pegasus_gen.dataset.physics import DropResult, drop_objects, packed_region, upright_quat_xyzw
 from pegasus_gen.errors import PegasusError
@@ -135,7 +135,8 @@ def plan_scene(scene_id: int, cfg: GenerateConfig, assets: Assets) -> ScenePlan:
     objects = _choose_objects(cfg, assets, rng)
     clutter_rng = np.random.default_rng([cfg.seed, scene_id, DISTRACTOR_STREAM])
     count = int(clutter_rng.integers(cfg.distractors.count[0], cfg.distractors.count[1] + 1))
-    distractors = [make_distractor(cfg.distractors, clutter_rng, k) for k in range(count)]
+    palette = object_palette([o.splats for o in objects], clutter_rng) if cfg.distractors.object_colours else None
+    distractors = [make_distractor(cfg.distractors, clutter_rng, k, palette) for k in range(count)]
     upright_rng = np.random.default_rng([cfg.seed, scene_id, UPRIGHT_STREAM])
     orientations = [upright_quat_xyzw(upright_rng) if upright_rng.random() < cfg.upright else None for _ in objects]
     orientations += [None] * len(distractors)  # distractors fall in a random orientation

@@ -77,10 +77,11 @@ def box(size, n: int, colors_per_face, rng: np.random.Generator, **kwargs) -> Sp
     return surface_splats(np.concatenate(pts), np.concatenate(nrm), np.concatenate(col), spacing, rng, **kwargs)
 
 
-def random_texture(rng: np.random.Generator, period: tuple[float, float]):
-    """A texture function points [N, 3] (m) -> rgb [N, 3] in 0..1: stripes, checks or blobs in 2-3 random
-    colours, with a feature size drawn from ``period`` (m)."""
-    colours = rng.uniform(0.05, 0.95, (int(rng.integers(2, 4)), 3))
+def random_texture(rng: np.random.Generator, period: tuple[float, float], colours: np.ndarray | None = None):
+    """A texture function points [N, 3] (m) -> rgb [N, 3] in 0..1: stripes, checks or blobs in ``colours``
+    [C, 3] (default: 2-3 random ones; one colour paints it plain), with a feature size drawn from ``period`` (m)."""
+    if colours is None:
+        colours = rng.uniform(0.05, 0.95, (int(rng.integers(2, 4)), 3))
     period = rng.uniform(*period)
     kind = int(rng.integers(3))
     direction = rng.normal(size=3)
