@@ -137,15 +137,14 @@ def test_objects_dropped_packed_rest_closer_together(library):
     env = library.get("wooden_table")
     objects = [library.get(i) for i in (1, 5, 7, 8)]
 
-    def spread(region_of):
-        result = drop_objects(env, objects, np.random.default_rng(seed), region=region_of(seed))
+    def spread(seed, region):  # mean distance (m) between the rested objects' centres
+        result = drop_objects(env, objects, np.random.default_rng(seed), region=region)
         xy = np.array([T[:2, 3] for T in result.poses.values()])
         return np.mean([np.linalg.norm(a - b) for k, a in enumerate(xy) for b in xy[k + 1:]])
 
-    scattered, packed = [], []
-    for seed in range(3):
-        scattered.append(spread(lambda s: None))
-        packed.append(spread(lambda s: packed_region(env.manifest.drop_region, objects, np.random.default_rng(s))))
+    scattered = [spread(seed, None) for seed in range(3)]
+    packed = [spread(seed, packed_region(env.manifest.drop_region, objects, np.random.default_rng(seed)))
+              for seed in range(3)]
     side = np.sqrt(sum(np.pi * bounding_radius(o) ** 2 for o in objects) / PACKED_FILL)
     assert np.mean(packed) < 0.6 * np.mean(scattered)
     assert max(packed) < 1.5 * side  # a settled pile spreads a little beyond its square, not across the table

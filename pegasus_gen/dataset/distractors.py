@@ -16,9 +16,9 @@ import numpy as np
 import trimesh
 
 from pegasus_gen.dataset.config import DistractorConfig
-from pegasus_gen.splats import sh
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.procedural import random_texture
+from pegasus_gen.splats.sh import sh_dc_to_rgb
 from pegasus_gen.splats.surface_splats import surface_splats
 
 SPACING = 0.004  # m between neighbouring splats
@@ -48,7 +48,7 @@ PALETTE_SPLATS = 256  # splat colours drawn from each object for the distractors
 def object_palette(clouds: list[SplatCloud], rng: np.random.Generator) -> np.ndarray:
     """rgb [P, 3] (0..1): the base (view-independent) colours of ``PALETTE_SPLATS`` random splats of each cloud."""
     dc = np.concatenate([c.sh[rng.integers(len(c), size=PALETTE_SPLATS), 0] for c in clouds])
-    return np.clip(0.5 + sh.C0 * dc, 0.0, 1.0)
+    return np.clip(sh_dc_to_rgb(dc), 0.0, 1.0)
 
 
 def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from pegasus_gen.splats.cloud import SplatCloud, quat_wxyz_to_rotation
-from pegasus_gen.splats.sh import C0
+from pegasus_gen.splats.sh import rgb_to_sh_dc, sh_dc_to_rgb
 
 
 def transform_colour(cloud: SplatCloud, M: np.ndarray) -> SplatCloud:
@@ -18,9 +18,9 @@ def transform_colour(cloud: SplatCloud, M: np.ndarray) -> SplatCloud:
     M = np.asarray(M, np.float64)
     M = np.broadcast_to(M, (len(cloud), 3, 3)) if M.ndim == 2 else M
     sh = cloud.sh.astype(np.float64)
-    colour = C0 * sh[:, 0] + 0.5
+    colour = sh_dc_to_rgb(sh[:, 0])
     out = np.einsum("nij,nkj->nki", M, sh)
-    out[:, 0] = (np.einsum("nij,nj->ni", M, colour) - 0.5) / C0
+    out[:, 0] = rgb_to_sh_dc(np.einsum("nij,nj->ni", M, colour))
     return cloud.replace(sh=out)
 
 
@@ -37,9 +37,9 @@ def blend_colour(cloud: SplatCloud, rgb: np.ndarray, weight: float) -> SplatClou
     """The cloud with its colour blended towards ``rgb`` [N, 3] (0..1, view-independent) by ``weight`` (0: as
     it was, 1: ``rgb`` seen from every direction): c' = (1 - w) c + w rgb on every band."""
     sh = cloud.sh.astype(np.float64)
-    colour = (1.0 - weight) * (C0 * sh[:, 0] + 0.5) + weight * np.asarray(rgb, np.float64)
+    colour = (1.0 - weight) * sh_dc_to_rgb(sh[:, 0]) + weight * np.asarray(rgb, np.float64)
     sh[:, 1:] *= 1.0 - weight
-    sh[:, 0] = (colour - 0.5) / C0
+    sh[:, 0] = rgb_to_sh_dc(colour)
     return cloud.replace(sh=sh)
 
 

@@ -95,6 +95,11 @@ def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
     return (np.asarray(rgb, dtype=np.float64) - 0.5) / C0
 
 
+def sh_dc_to_rgb(dc: np.ndarray) -> np.ndarray:
+    """The view-independent colour of DC coefficients [..., 3]: C0 dc + 0.5 (unclamped; the dtype of ``dc``)."""
+    return C0 * np.asarray(dc) + 0.5
+
+
 def _fibonacci_sphere(n: int) -> np.ndarray:
     """n well-spread unit directions [n, 3] (deterministic)."""
     i = np.arange(n) + 0.5
