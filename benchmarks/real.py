@@ -5,22 +5,22 @@ Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] 
        [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda]
        [--generate key=value ...] [--train key=value ...] --out OUT
 
-What it reads of DIR, and nothing else: ``models/obj_{ID:06d}.ply`` (mm, vertex colour) and
-``models/models_info.json`` (diameter), the split's ``scene_camera.json`` (the real camera's K) and image size,
-and for scoring the split's ground truth. Steps, each with its time:
+What it reads of DIR, and nothing else: ``models/obj_*.ply`` (mm, vertex colour: the objects, and the others as
+clutter) and ``models/models_info.json`` (diameter), the split's ``scene_camera.json`` (the real camera's K) and
+image size, and for scoring the split's ground truth. Steps, each with its time:
 
-1. Library ``OUT/library``: the built-in environments (built in ``OUT/demo_library``), and each object
-   imported from its BOP model.
+1. Library ``OUT/library``: the built-in environments (built in ``OUT/demo_library``), each object imported from
+   its BOP model, and up to ``CLUTTER_MODELS`` of the dataset's other models.
 2. One training dataset ``OUT/data`` for all the objects (``--frames`` frames, 2 per scene): every object in
-   every scene (target and clutter of the others), 3-8 procedural distractors (half of them painted in the
-   objects' colours; three quarters of the scenes packed together: ``PACKED``), the three built-in environments
-   (half of the scenes repainted with a random texture), generate's shadows and appearance randomisation,
-   cameras ``--distance`` m from the objects at 20-75 degrees elevation, motion blur at most as long as 5 % of
-   an 8-frame scene's image motion per frame (``SHUTTER``), half of the objects dropped standing (``UPRIGHT``),
-   rendered antialiased (the meshes' splats otherwise look larger than the objects: docs/TRAINING.md) at the
-   recipe's network scale (``dope_training.recipe``) with the real camera's shape, and ``--generate``
-   overrides on top; and a synthetic held-out set (another seed, 60 frames of 30 scenes). A finished dataset
-   in OUT is reused.
+   every scene (target and clutter of the others), each of the other models in half of the scenes, 3-8
+   procedural distractors (half of them painted in the objects' colours; three quarters of the scenes packed
+   together: ``PACKED``), the three built-in environments (half of the scenes repainted with a random texture),
+   generate's shadows and appearance randomisation, cameras ``--distance`` m from the objects at 20-75 degrees
+   elevation, motion blur at most as long as 5 % of an 8-frame scene's image motion per frame (``SHUTTER``), half
+   of the objects dropped standing (``UPRIGHT``), rendered antialiased (the meshes' splats otherwise look larger
+   than the objects: docs/TRAINING.md) at the recipe's network scale (``dope_training.recipe``) with the real
+   camera's shape, and ``--generate`` overrides on top; and a synthetic held-out set (another seed, 60 frames of
+   30 scenes). A finished dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
 4. Per object: ``pegasus eval`` figures on the synthetic held-out set, which sets the detection score (the
@@ -92,6 +92,10 @@ PACKED = 0.75
 # half of the distractors painted in the objects' colours: packed scenes alone (run T) found more of the ape in the
 # photos but fired three times as often on real clutter (5.1 false positives per photo), on things of its colour
 DISTRACTORS = ["distractors.count=[3, 8]", "distractors.size=[0.05, 0.2]", "distractors.object_colours=0.5"]
+# the dataset's other models (DIR/models) dropped as clutter, each in half of the scenes, at most CLUTTER_MODELS of
+# them (a seeded choice): real shapes and colours beside the targets, where the procedural distractors are boxes,
+# cylinders and spheres
+CLUTTER_MODELS = 4
 
 
 def real_camera(root: Path, split: str) -> RealCamera:
@@ -113,6 +117,17 @@ def object_infos(root: Path, ids: list[int]) -> dict[int, dict]:
         if str(i) not in info or not (root / "models" / f"obj_{i:06d}.ply").is_file():
             raise PegasusError(f"{root}/models: no obj_{i:06d}.ply with a models_info.json entry")
     return {i: info[str(i)] for i in ids}
+
+
+def clutter_ids(root: Path, ids: list[int], seed: int) -> list[int]:
+    """obj_ids of the other models in ``root/models`` (a ply with a models_info.json entry), at most
+    ``CLUTTER_MODELS`` of them chosen with ``seed``, ascending."""
+    info = read_json(root / "models" / "models_info.json")
+    others = sorted(int(k) for k in info
+                    if int(k) not in ids and (root / "models" / f"obj_{int(k):06d}.ply").is_file())
+    if len(others) > CLUTTER_MODELS:
+        others = sorted(np.random.default_rng(seed).choice(others, CLUTTER_MODELS, replace=False).tolist())
+    return others
 
 
 def make_dataset(folder: Path, overrides: list[str]) -> Path:
@@ -168,7 +183,8 @@ def main() -> int:
     for m in demo.manifests():
         if m.kind == "environment" and m.name not in library.names():
             shutil.copytree(demo.asset_path(m.name), library.asset_path(m.name))
-    for i in ids:
+    clutter = clutter_ids(root, ids, args.seed)
+    for i in [*ids, *clutter]:
         if f"real_{i}" not in library.names():
             import_mesh(root / "models" / f"obj_{i:06d}.ply", f"real_{i}", "object", library, obj_id=i, scale=0.001)
     times["library"] = time.monotonic() - t0
@@ -177,7 +193,8 @@ def main() -> int:
     diameters = {i: infos[i]["diameter"] / 1000.0 for i in ids}
     focal = {i: network_focal(diameters[i], args.distance, camera) for i in ids}
     cam = training_camera(float(np.median(list(focal.values()))), camera)
-    objects = "[" + ", ".join(f"{{asset: real_{i}, count: [1, 1]}}" for i in ids) + "]"
+    objects = "[" + ", ".join([*(f"{{asset: real_{i}, count: [1, 1]}}" for i in ids),
+                               *(f"{{asset: real_{i}, count: [0, 1]}}" for i in clutter)]) + "]"
     common = [f"library={library.root}", f"environments={ENVIRONMENTS}", f"objects={objects}",
               f"min_objects={len(ids)}", f"frames_per_scene={FRAMES_PER_SCENE}", *DISTRACTORS, f"packed={PACKED}",
               "appearance.retexture=0.5", f"appearance.shutter={SHUTTER}",
@@ -221,7 +238,7 @@ def main() -> int:
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
            "training_camera": cam, "frames": args.frames, "epochs": args.epochs, "distance_m": list(args.distance),
-           "variant": args.variant, "generate": args.generate, "train": args.train,
+           "variant": args.variant, "clutter": clutter, "generate": args.generate, "train": args.train,
            "objects": {str(i): rows[i] for i in ids}, "mean": mean, "seconds": times,
            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}"}
     (out / "real.json").write_text(json.dumps(doc, indent=1))

@@ -48,10 +48,11 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     real = tmp_path / "real"
     generate(load_config(None, [f"output={real}", f"library={library.root}", "split=test", "scenes=1",
                                 "frames_per_scene=3", "camera.width=320", "camera.height=240", "device=cpu",
-                                "environments=[tiled_floor]", "objects=[{asset: 1, count: [1, 1]}]", "min_objects=1"]))
+                                "environments=[tiled_floor]", "min_objects=2",
+                                "objects=[{asset: 1, count: [1, 1]}, {asset: 2, count: [1, 1]}]"]))
     out = tmp_path / "bench"
     script = str(ROOT / "benchmarks" / "real.py")
-    result = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "8",
+    result = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "16",
                              "--epochs", "1", "--device", "cpu", "--out", str(out)],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
@@ -61,6 +62,10 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     doc = json.loads((out / "real.json").read_text())
     figures = doc["objects"]["1"]["real"]
     assert figures["images"] == 3 and figures["instances"] == 3  # every test image scored, one cup in each
+    # the real set's other model is clutter in the training data (each scene holds it with probability 1/2: seeded)
+    seen = {g["obj_id"] for p in (out / "data" / "train_pbr").glob("*/scene_gt.json")
+            for gts in json.loads(p.read_text()).values() for g in gts}
+    assert doc["clutter"] == [2] and seen == {1, 2}
     assert doc["training_camera"]["width"] % 8 == 0 and (out / "eval" / "obj_000001" / "eval.json").is_file()
     bad = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "99", "--out",
                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
