@@ -80,6 +80,7 @@ def cup_urdf(tmp_path_factory):
     return lib.get("noodle_cup_red").urdf_path
 
 
+@pytest.mark.slow  # 55 s; the fast suite picks through the whole launch in tests/test_sim_grasp.py
 def test_twenty_cup_picks_with_the_real_client_land_in_the_basket(cup_urdf):
     host = f"127.0.{os.getpid() % 200 + 20}.200"
     rng = np.random.default_rng(7)

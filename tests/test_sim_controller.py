@@ -26,7 +26,7 @@ _hosts = (f"127.0.{os.getpid() % 200 + 20}.{n}" for n in itertools.count(2))
 
 @pytest.fixture
 def controller():
-    with SimControllerProcess(next(_hosts)) as sim:
+    with SimControllerProcess(next(_hosts), time_scale=4.0) as sim:  # 4x real time, as the pick tests
         yield sim
 
 
@@ -164,7 +164,7 @@ def test_killing_the_controller_mid_move_is_a_clean_error_not_a_hang(controller)
         threading.Timer(0.6, controller.kill).start()
         t0 = time.monotonic()
         with pytest.raises(RobotConnectionError, match="lost"):
-            robot.move_l(target, speed=0.1)
+            robot.move_l(target, speed=0.05)
         assert time.monotonic() - t0 < 5.0
 
 
