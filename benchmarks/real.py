@@ -94,7 +94,7 @@ PACKED = 0.75
 DISTRACTORS = ["distractors.count=[3, 8]", "distractors.size=[0.05, 0.2]", "distractors.object_colours=0.5"]
 # the dataset's other models (DIR/models) dropped as clutter, each in half of the scenes, at most CLUTTER_MODELS of
 # them (a seeded choice): real shapes and colours beside the targets, where the procedural distractors are boxes,
-# cylinders and spheres
+# cylinders and spheres (run W: the ape's and the duck's false positives per photo 2.67 -> 1.38 and 0.71 -> 0.39)
 CLUTTER_MODELS = 4
 
 
