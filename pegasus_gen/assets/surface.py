@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from pegasus_gen.assets.collision import MeshParams, splats_to_mesh
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.from_mesh import surface_colors
-from pegasus_gen.splats.sh import C0
+from pegasus_gen.splats.sh import sh_dc_to_rgb
 
 MAX_EDGE = 0.0015  # m: longest edge of a surface model (texture detail kept per vertex)
 SPLAT_SURFACE = MeshParams(smooth_iterations=3, max_triangles=60_000)  # finer than the collision mesh
@@ -51,5 +51,5 @@ def splat_surface(cloud: SplatCloud, params: MeshParams = SPLAT_SURFACE) -> trim
     surface, _ = splats_to_mesh(cloud, params)
     opaque = cloud.opacities >= params.min_opacity
     _, nearest = cKDTree(cloud.means[opaque]).query(surface.vertices, k=COLOUR_NEIGHBOURS)
-    dc = cloud.sh[opaque][:, 0, :] * C0 + 0.5  # [N, 3] colour of each opaque splat
-    return with_colors(surface, dc[nearest].mean(axis=1))
+    rgb = sh_dc_to_rgb(cloud.sh[opaque][:, 0, :])  # [N, 3] colour of each opaque splat
+    return with_colors(surface, rgb[nearest].mean(axis=1))
