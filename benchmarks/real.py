@@ -110,19 +110,18 @@ def real_camera(root: Path, split: str) -> RealCamera:
     return RealCamera(frame.K, width, height)
 
 
-def object_infos(root: Path, ids: list[int]) -> dict[int, dict]:
-    """models_info entries of ``ids``; a clear error for a missing model or entry."""
-    info = read_json(root / "models" / "models_info.json")
+def object_infos(root: Path, info: dict, ids: list[int]) -> dict[int, dict]:
+    """The entries of ``ids`` in ``info`` (``root``'s models_info.json); a clear error for a missing model or
+    entry."""
     for i in ids:
         if str(i) not in info or not (root / "models" / f"obj_{i:06d}.ply").is_file():
             raise PegasusError(f"{root}/models: no obj_{i:06d}.ply with a models_info.json entry")
     return {i: info[str(i)] for i in ids}
 
 
-def clutter_ids(root: Path, ids: list[int], seed: int) -> list[int]:
-    """obj_ids of the other models in ``root/models`` (a ply with a models_info.json entry), at most
-    ``CLUTTER_MODELS`` of them chosen with ``seed``, ascending."""
-    info = read_json(root / "models" / "models_info.json")
+def clutter_ids(root: Path, info: dict, ids: list[int], seed: int) -> list[int]:
+    """obj_ids of the other models in ``root/models`` (a ply with an entry in ``info``, its models_info.json), at
+    most ``CLUTTER_MODELS`` of them chosen with ``seed``, ascending."""
     others = sorted(int(k) for k in info
                     if int(k) not in ids and (root / "models" / f"obj_{int(k):06d}.ply").is_file())
     if len(others) > CLUTTER_MODELS:
@@ -175,7 +174,8 @@ def main() -> int:
     if args.frames < FRAMES_PER_SCENE or args.epochs < 1 or not 0 < args.distance[0] < args.distance[1] < 20:
         raise PegasusError(f"--frames >= {FRAMES_PER_SCENE}, --epochs >= 1 and 0 < near < far <= 20 m expected")
     camera = real_camera(root, args.split)
-    infos = object_infos(root, ids)
+    models_info = read_json(root / "models" / "models_info.json")
+    infos = object_infos(root, models_info, ids)
     times, t0 = {}, time.monotonic()
 
     demo, library = AssetLibrary(out / "demo_library"), AssetLibrary(out / "library")
@@ -183,7 +183,7 @@ def main() -> int:
     for m in demo.manifests():
         if m.kind == "environment" and m.name not in library.names():
             shutil.copytree(demo.asset_path(m.name), library.asset_path(m.name))
-    clutter = clutter_ids(root, ids, args.seed)
+    clutter = clutter_ids(root, models_info, ids, args.seed)
     for i in [*ids, *clutter]:
         if f"real_{i}" not in library.names():
             import_mesh(root / "models" / f"obj_{i:06d}.ply", f"real_{i}", "object", library, obj_id=i, scale=0.001)
