@@ -192,6 +192,27 @@ def crop_transform(size: int, base: float, centre: np.ndarray, rng: np.random.Ge
     return np.concatenate([R, (target - R @ centre)[:, None]], axis=1)
 
 
+def occluder_mask(size: int, box: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """[S, S] bool: a random polygon of 5-9 corners centred on a random point of ``box`` [4] (x0, y0, x1, y1; crop
+    px) with an area of 15-50 % of the box's on average: the shape of a cut-out occluder."""
+    centre = rng.uniform(box[:2], box[2:])
+    radius = np.sqrt(max(box[2] - box[0], 1.0) * max(box[3] - box[1], 1.0) * rng.uniform(0.15, 0.5) / np.pi)
+    angles = np.sort(rng.uniform(0, 2 * np.pi, rng.integers(5, 10)))
+    radii = radius * rng.uniform(0.6, 1.3, len(angles))
+    corners = centre + radii[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    mask = np.zeros((size, size), np.uint8)
+    cv2.fillPoly(mask, [np.round(corners).astype(np.int32)], 1)
+    return mask.astype(bool)
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """[H, W, 3] uint8 RGB of an image file; a PegasusError if it cannot be read."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise PegasusError(f"{path}: cannot read the image")
+    return np.ascontiguousarray(image[..., ::-1])
+
+
 def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> np.ndarray:
     """[H, W, 3] uint8 RGB with random brightness, contrast, saturation, hue and Gaussian noise."""
     hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV).astype(np.float32)
@@ -214,15 +235,19 @@ class DopeDataset(torch.utils.data.Dataset):
     workers, whose copies of the dataset keep the epoch they started with). A crop
     is centred near one of the sample's instances, or, for a share ``negatives`` of the items and for samples
     without instances, on a random point of the image: background, clutter and other objects, where the
-    network must learn to find nothing (an instance the crop happens to hold keeps its targets).
+    network must learn to find nothing (an instance the crop happens to hold keeps its targets). A share
+    ``occluders`` of the crops centred on an instance get a cut-out of another sample's image (a random place in
+    it, at its nominal scale; ``occluder_mask``'s shape) pasted over part of that instance, whose targets stay
+    whole: the network learns to read a partly hidden object's pose from what shows.
     """
 
     def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
-                 stride: int = 8, focal_px: float = 0.0, sigma_px: float = SIGMA_PX, negatives: float = 0.0):
+                 stride: int = 8, focal_px: float = 0.0, sigma_px: float = SIGMA_PX, negatives: float = 0.0,
+                 occluders: float = 0.0):
         if size % stride:
             raise PegasusError(f"input size {size} must be a multiple of the network stride {stride}")
         self.samples, self.size, self.stride, self.seed, self.focal_px = samples, size, stride, seed, focal_px
-        self.sigma_px, self.negatives = sigma_px, negatives
+        self.sigma_px, self.negatives, self.occluders = sigma_px, negatives, occluders
         self.augment = augment or Augment()
         self.epoch = 0
 
@@ -234,24 +259,41 @@ class DopeDataset(torch.utils.data.Dataset):
         [2, 3] from image to crop pixels, of ``epoch`` (default ``self.epoch``)."""
         sample = self.samples[index]
         rng = np.random.default_rng([self.seed, self.epoch if epoch is None else epoch, index])
-        image = cv2.imread(str(sample.image), cv2.IMREAD_COLOR)
-        if image is None:
-            raise PegasusError(f"{sample.image}: cannot read the image")
-        image = image[..., ::-1]
+        image = read_rgb(sample.image)
         keypoints = np.stack(sample.keypoints) if sample.keypoints else np.zeros((0, 9, 2))
+        chosen = None
         if not len(keypoints) or (self.negatives > 0 and rng.uniform() < self.negatives):
             centre = rng.uniform((0, 0), image.shape[1::-1])
         else:
-            centre = keypoints[rng.integers(len(keypoints)), 8]
+            chosen = rng.integers(len(keypoints))
+            centre = keypoints[chosen, 8]
         base = input_scale(image.shape[:2], sample.K, self.size, self.focal_px)
         M = crop_transform(self.size, base, centre, rng, self.augment)
         border = tuple(int(v) for v in rng.integers(0, 256, 3)) if self.augment.enabled else (0, 0, 0)
-        crop = cv2.warpAffine(np.ascontiguousarray(image), M, (self.size, self.size), flags=cv2.INTER_LINEAR,
+        crop = cv2.warpAffine(image, M, (self.size, self.size), flags=cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+        moved = keypoints @ M[:, :2].T + M[:, 2]
+        if (self.augment.enabled and chosen is not None and len(self.samples) > 1 and self.occluders > 0
+                and rng.uniform() < self.occluders):
+            crop = self.occlude(crop, moved[chosen], index, rng)
         if self.augment.enabled:
             crop = jitter_colour(crop, rng, self.augment)
-        moved = keypoints @ M[:, :2].T + M[:, 2]
         return crop, moved, M
+
+    def occlude(self, crop: np.ndarray, keypoints: np.ndarray, index: int, rng: np.random.Generator) -> np.ndarray:
+        """``crop`` [S, S, 3] uint8 with a cut-out of another sample's image than ``index`` pasted over part of the
+        instance whose keypoints [9, 2] (crop px) are given."""
+        other = rng.integers(len(self.samples) - 1)
+        source = self.samples[other + (other >= index)]
+        image = read_rgb(source.image)
+        base = input_scale(image.shape[:2], source.K, self.size, self.focal_px)
+        M = crop_transform(self.size, base, rng.uniform((0, 0), image.shape[1::-1]), rng, self.augment)
+        patch = cv2.warpAffine(image, M, (self.size, self.size), flags=cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REFLECT_101)
+        mask = occluder_mask(self.size, np.concatenate([keypoints.min(0), keypoints.max(0)]), rng)
+        out = crop.copy()
+        out[mask] = patch[mask]
+        return out
 
     def __getitem__(self, key: int | tuple[int, int]):
         epoch, index = key if isinstance(key, tuple) else (self.epoch, key)

@@ -300,7 +300,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
         if world > 1 else model
 
     dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
-                          sigma_px=cfg.sigma_px, negatives=cfg.negatives)
+                          sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
     workers = loader_workers(cfg, device)  # started once: the sampler's keys carry the epoch to them
     loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=sampler, num_workers=workers,

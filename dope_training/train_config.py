@@ -50,6 +50,9 @@ class TrainConfig(BaseModel):
     negatives: float = Field(0.0, ge=0.0, le=1.0, description="share of crops centred on a random point of the image "
                              "instead of an instance, images without the object included: background and clutter "
                              "where nothing is to be found (BOP data)")
+    occluders: float = Field(0.0, ge=0.0, le=1.0, description="share of the crops on an instance with a cut-out of "
+                             "another training image pasted over part of it (its targets kept): partly hidden "
+                             "objects")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
                                             "nominal-scale crops around the instances only)")
     device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto: CUDA when torch sees a GPU")

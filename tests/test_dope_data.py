@@ -6,6 +6,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+import torch
 from scipy.spatial.transform import Rotation
 
 from dope_training.data import Augment, DopeDataset, Sample, canonical_pose, input_scale, load_bop
@@ -146,6 +147,34 @@ def test_negative_crops_look_away_from_the_instances_and_keep_the_targets_of_any
     assert all(near) and np.mean(far) > 0.7  # random points of the image: mostly far from the instance
     data = DopeDataset([empty], size=128)
     assert data[0][1].numpy().max() == 0.0  # an image without the object: a crop with nothing to find
+
+
+def test_occluders_paste_another_image_over_part_of_the_instance_and_keep_its_targets(tmp_path):
+    black, white = np.zeros((400, 400, 3), np.uint8), np.full((400, 400, 3), 255, np.uint8)
+    cv2.imwrite(str(tmp_path / "black.png"), black)
+    cv2.imwrite(str(tmp_path / "white.png"), white)
+    corners = np.array([[x, y] for x in (170.0, 230.0) for y in (180.0, 220.0)] * 2)  # a 60 x 40 px box
+    keypoints = np.vstack([corners, [[200.0, 200.0]]])
+    samples = [Sample(tmp_path / "black.png", np.eye(3), [keypoints], [1], [1.0]),
+               Sample(tmp_path / "white.png", np.eye(3))]
+    plain = Augment(brightness=0, contrast=0, saturation=0, hue_deg=0, noise_std=0)  # pixel values kept
+    kept, hidden = (DopeDataset(samples, size=128, focal_px=1.0, augment=plain, occluders=share) for share in (0, 1))
+    covers = []
+    for epoch in range(30):
+        kept.epoch = hidden.epoch = epoch
+        crop0, moved0, M0 = kept.item(0)
+        crop1, moved1, M1 = hidden.item(0)
+        assert crop0.max() == 0 and np.array_equal(M0, M1)  # the same crop; without occluders no white pixel
+        for a, b in zip(kept[0][1:], hidden[0][1:]):
+            assert torch.equal(a, b)  # beliefs, affinities and distance targets untouched by the occluder
+        pasted = (crop1 == 255).all(axis=2)
+        assert ((crop1 == 0) | (crop1 == 255)).all() and pasted.any()  # only the other image's pixels
+        x0, y0 = np.floor(moved1.min(axis=(0, 1))).astype(int)
+        x1, y1 = np.ceil(moved1.max(axis=(0, 1))).astype(int)
+        cover = pasted[max(y0, 0):y1, max(x0, 0):x1].mean()
+        assert cover > 0  # over the instance's box
+        covers.append(cover)
+    assert 0.05 < np.median(covers) < 0.6  # part of the instance hidden, never all of it on the whole
 
 
 def test_focal_length_policy_shows_objects_at_the_same_size_from_any_camera(tmp_path):
