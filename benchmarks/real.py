@@ -24,7 +24,8 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
 4. Per object: ``pegasus eval`` figures on the synthetic held-out set, which sets the detection score (the
-   lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there), then on the real
+   lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there and keeping
+   ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found there), then on the real
    split with that score (``OUT/eval/obj_ID``: eval.json, the curve and the gallery of the worst images).
 
 Writes ``OUT/real.json``, prints one line per object and ends with one line: ``real: mean ADD(-S) 0.1d recall R,
@@ -51,6 +52,7 @@ from dope_training.evaluate import describe_found, evaluate, score_threshold, wr
 from dope_training.infer import DopeModel
 from dope_training.recipe import (
     HELD_OUT_FALSE_POSITIVES,
+    HELD_OUT_KEEP_FOUND,
     VARIANT,
     RealCamera,
     network_focal,
@@ -221,7 +223,7 @@ def main() -> int:
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
         synthetic = evaluate(model, held_out, "train_pbr")
         write_eval_report(synthetic, out / "eval_synthetic" / f"obj_{i:06d}")
-        min_score = score_threshold(synthetic, HELD_OUT_FALSE_POSITIVES)
+        min_score = score_threshold(synthetic, HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND)
         report = evaluate(model, root, args.split, max_images=args.max_images, min_score=min_score)
         write_eval_report(report, out / "eval" / f"obj_{i:06d}")
         times[f"evaluate obj {i}"] = time.monotonic() - t0

@@ -265,18 +265,23 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     return report
 
 
-def score_threshold(report: dict, max_false_positives_per_image: float) -> float:
+def score_threshold(report: dict, max_false_positives_per_image: float, keep_found: float = 0.0) -> float:
     """The lowest detection score (centroid belief) at which the report's estimates would leave at most
     ``max_false_positives_per_image`` false positives per image: counted as every estimate at or above it
-    less the matched ones at or above it (each instance keeps its match while its score passes). Calibrate on
-    generated held-out frames, never on the photos the figures are for."""
+    less the matched ones at or above it (each instance keeps its match while its score passes); and, with
+    ``keep_found`` > 0, at least the highest score that still keeps that share of the report's found instances
+    (ceil(keep_found x found) of them). Calibrate on generated held-out frames, never on the photos the figures
+    are for."""
     scores = np.array([e["score"] for f in report["frames"] for e in f["estimates"]], float)
     matched = np.array([m["score"] for m in report["per_instance"] if m["score"] is not None], float)
     images = max(report["images"], 1)
-    for t in np.unique(np.concatenate([[report["min_score"]], scores])):
+    floor = report["min_score"]
+    if keep_found > 0 and len(matched):
+        floor = max(floor, float(np.sort(matched)[::-1][int(np.ceil(keep_found * len(matched))) - 1]))
+    for t in np.unique(np.concatenate([[floor], scores[scores >= floor]])):
         if ((scores >= t).sum() - (matched >= t).sum()) / images <= max_false_positives_per_image:
             return float(t)
-    return float(scores.max(initial=report["min_score"])) + 1e-6
+    return float(scores.max(initial=floor)) + 1e-6
 
 
 def write_eval_report(report: dict, out: str | Path) -> tuple[Path, Path, Path | None]:

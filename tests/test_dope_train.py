@@ -284,6 +284,18 @@ def test_score_threshold_keeps_false_positives_per_image_within_the_bound():
               "per_instance": [{"score": 0.9}, {"score": 0.8}, {"score": None}]}  # two matched, one missed
     # above 0.1: 3 false positives in 2 images; 0.3: 2; 0.5: 1; 0.8: none
     assert [score_threshold(report, f) for f in (2.0, 1.5, 1.0, 0.5, 0.0)] == [0.1, 0.1, 0.3, 0.5, 0.8]
+    # keeping found instances: 0.5 keeps one of the two found (score 0.9), 1.0 both (0.8 and up); the false
+    # positives' bound still applies above that
+    assert [score_threshold(report, 2.0, keep) for keep in (0.5, 0.6, 1.0)] == [0.9, 0.8, 0.8]
+    assert score_threshold(report, 0.0, 0.5) == 0.9
+
+
+def test_score_threshold_keeps_the_share_of_found_instances():
+    scores = [0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.15, 0.12]  # ten found instances, no false positive
+    report = {"frames": [{"estimates": [{"score": s} for s in scores]}], "images": 1, "min_score": 0.1,
+              "per_instance": [{"score": s} for s in scores] + [{"score": None}]}
+    # ceil(keep x 10)-th highest score: 8th, 9th, 10th; without keep_found the floor
+    assert [score_threshold(report, 0.0, keep) for keep in (0.8, 0.9, 0.95, 0.0)] == [0.2, 0.15, 0.12, 0.1]
 
 
 def test_gallery_shows_the_worst_images(tmp_path):
