@@ -83,8 +83,9 @@ def main():
         objects, what = DEMO_OBJECTS, "3-6 demo objects"
         if args.objects != "demo":
             plys = sorted(Path(args.objects).glob("obj_*.ply"))[:8]
+            taken = max(m.obj_id or 0 for m in lib.manifests())  # the demo objects' ids come first
             for ply in plys:
-                import_mesh(ply, f"m{ply.stem[4:]}", "object", lib, obj_id=int(ply.stem[4:]), scale=0.001)
+                import_mesh(ply, f"m{ply.stem[4:]}", "object", lib, obj_id=taken + int(ply.stem[4:]), scale=0.001)
             objects = "[" + ", ".join(f"{{asset: m{p.stem[4:]}, count: [1, 1]}}" for p in plys) + "]"
             what = f"{len(plys)} objects of {args.objects}"
         common = [f"library={lib.root}", "workers=1", f"device={args.device}", "environments=[wooden_table]",
