@@ -30,6 +30,7 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 from pegasus_gen.io.files import read_json
+from pegasus_gen.io.images import read_rgb
 
 
 @dataclass
@@ -203,14 +204,6 @@ def occluder_mask(size: int, box: np.ndarray, rng: np.random.Generator) -> np.nd
     mask = np.zeros((size, size), np.uint8)
     cv2.fillPoly(mask, [np.round(corners).astype(np.int32)], 1)
     return mask.astype(bool)
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    """[H, W, 3] uint8 RGB of an image file; a PegasusError if it cannot be read."""
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise PegasusError(f"{path}: cannot read the image")
-    return np.ascontiguousarray(image[..., ::-1])
 
 
 def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> np.ndarray:

@@ -206,12 +206,10 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         seen = [i.visib_fract is None or i.visib_fract >= min_visibility for i in mine]
         truths = [i for i, s in zip(mine, seen) if s]
         ignored = [i.T for i, s in zip(mine, seen) if not s]
-        image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
-        if image is None:
-            raise PegasusError(f"{frame.image}: cannot read the image")
+        image = images.read_rgb(frame.image)
         depth = frame.read_depth() if refine else None
         started = time.perf_counter()
-        estimates = model.estimate(image[..., ::-1].copy(), frame.K, min_score=min_score, depth_m=depth)
+        estimates = model.estimate(image, frame.K, min_score=min_score, depth_m=depth)
         seconds = time.perf_counter() - started
         for e in estimates:
             T = e.refined if refine else e.T
@@ -321,7 +319,7 @@ def write_gallery(report: dict, path: str | Path, count: int = GALLERY_IMAGES, w
     bbox_min, bbox_size = np.array(obj["bbox_min"]), np.array(obj["bbox_size"])
     tiles, height = [], None
     for f in worst:
-        image = cv2.imread(f["image"], cv2.IMREAD_COLOR)[..., ::-1].copy()
+        image = images.read_rgb(f["image"])
         K = np.array(f["K"])
         for T in f["truths"]:
             draw_instance(image, K, np.array(T), bbox_min, bbox_size, None, None, TRUTH_COLOUR, "truth")

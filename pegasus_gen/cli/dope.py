@@ -63,8 +63,9 @@ def _read_image(path) -> np.ndarray:
     """The RGB image [H, W, 3] uint8 at ``path``; a PegasusError when it cannot be read or its header gives more
     pixels than PIL's decompression-bomb bound (``Image.MAX_IMAGE_PIXELS``, about 89 MP: 270 MB decoded),
     checked before decoding."""
-    import cv2
     from PIL import Image
+
+    from pegasus_gen.io.images import read_rgb
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", Image.DecompressionBombWarning)
@@ -75,10 +76,7 @@ def _read_image(path) -> np.ndarray:
                                "have; not decoded") from None
         except (OSError, ValueError):
             raise PegasusError(f"{path}: cannot read the image") from None
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise PegasusError(f"{path}: cannot read the image")
-    return image[..., ::-1].copy()
+    return read_rgb(path)
 
 
 def cmd_infer(args) -> int:

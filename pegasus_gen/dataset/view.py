@@ -14,7 +14,7 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, model_boxes
 from pegasus_gen.formats.drawing import colour_of, draw_instance
 from pegasus_gen.io.files import write_atomic
-from pegasus_gen.io.images import write_image
+from pegasus_gen.io.images import read_rgb, write_image
 
 log = logging.getLogger(__name__)
 
@@ -59,10 +59,7 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
     for frame in frames:
         _check_frame(frame)
     for frame in tqdm(frames, desc="view", unit="image"):
-        image = cv2.imread(str(frame.image), cv2.IMREAD_COLOR)
-        if image is None:
-            raise PegasusError(f"{frame.image}: cannot read the image")
-        image = image[..., ::-1].copy()
+        image = read_rgb(frame.image)
         caption = []
         for inst in frame.instances:
             label = f"{inst.obj_id}" + (f" {inst.visib_fract:.0%}" if inst.visib_fract is not None else "")

@@ -1,4 +1,5 @@
-"""Image conversion and writing: float images to uint8/uint16, colourised depth and labels, atomic PNG writes."""
+"""Image reading, conversion and writing: RGB from files, float images to uint8/uint16, colourised depth and labels,
+atomic PNG writes."""
 
 from __future__ import annotations
 
@@ -40,6 +41,14 @@ def colorize_labels(label: np.ndarray) -> np.ndarray:
         hsv = np.uint8([[[hue, 200 if i else 40, value]]])
         out[label == i] = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0]
     return out
+
+
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """[H, W, 3] uint8 RGB of an image file; a PegasusError if it cannot be read."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise PegasusError(f"{path}: cannot read the image")
+    return np.ascontiguousarray(image[..., ::-1])
 
 
 def write_image(path: str | os.PathLike, image: np.ndarray, jpg_quality: int = 95) -> Path:
