@@ -1,11 +1,12 @@
 """DOPE speed: training images/s (full and light variants, CPU and CUDA when present) and inference latency at
 640x480: ONNX on the CPU (onnxruntime) and, with CUDA, torch on the GPU in half precision (``DopeModel``'s path).
 
-Usage: python benchmarks/dope.py [--variants full light] [--devices cpu cuda] [--steps 5] [--runs 10]
+Usage: python benchmarks/dope.py [--variants full light pretrained] [--devices cpu cuda] [--steps 5] [--runs 10]
 Training is timed on random 3x{crop} images with random targets (the data pipeline is not included: it
 runs in loader processes beside the GPU); the first step is not timed. Crops: full 400 px batch 8 (DOPE
-uses 32 on a GPU), light 320 px batch 8. Inference: the exported last stage on a 640x480 image (the input
-size the network sees when an image is not rescaled), median of ``--runs`` after one warm-up.
+uses 32 on a GPU), light 320 px batch 8, pretrained (the sim-to-real recipe's network) 128 px batch 8.
+Inference: the exported last stage on a 640x480 image (the input size the network sees when an image is not
+rescaled), median of ``--runs`` after one warm-up.
 """
 
 from __future__ import annotations
@@ -22,17 +23,19 @@ import torch
 
 from dope_training.export import export_onnx
 from dope_training.model import DopeNetwork, ModelConfig, dope_loss
+from dope_training.recipe import CROP_PX
 
-CROPS = {"full": 400, "light": 320}
+CROPS = {"full": 400, "light": 320, "pretrained": CROP_PX}
 
 
 def train_rate(variant: str, device: str, steps: int, batch: int = 8) -> float:
-    """Images/s of forward + backward + Adam step (AMP on CUDA) at the variant's crop size."""
+    """Images/s of forward + backward + Adam step (AMP on CUDA) at the variant's crop size, tensors channels-last
+    as ``pegasus train`` keeps them."""
     size = CROPS[variant]
-    model = DopeNetwork(ModelConfig.of(variant)).to(device).train()
+    model = DopeNetwork(ModelConfig.of(variant)).to(device, memory_format=torch.channels_last).train()
     optimiser = torch.optim.Adam(model.parameters(), 1e-4)
     scaler = torch.amp.GradScaler("cuda", enabled=device == "cuda")
-    image = torch.rand(batch, 3, size, size, device=device)
+    image = torch.rand(batch, 3, size, size, device=device).contiguous(memory_format=torch.channels_last)
     beliefs = torch.rand(batch, 9, size // 8, size // 8, device=device)
     affinities = torch.rand(batch, 16, size // 8, size // 8, device=device) * 2 - 1
     times = []
@@ -86,7 +89,7 @@ def torch_latency_ms(variant: str, device: str, runs: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--variants", nargs="+", default=["full", "light"], choices=list(CROPS))
+    parser.add_argument("--variants", nargs="+", default=list(CROPS), choices=list(CROPS))
     parser.add_argument("--devices", nargs="+", default=["cpu", "cuda"], choices=["cpu", "cuda"])
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--runs", type=int, default=10)

@@ -282,7 +282,9 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
         load_pretrained(model.features)
     check_memory(memory_estimate(architecture, cfg.size, cfg.size, cfg.batch_size, training=True), device,
                  f"training on {cfg.size} px crops in batches of {cfg.batch_size}")
-    model.to(device)
+    # channels-last tensors: oneDNN's convolutions (CPU) and cuDNN's under AMP skip their layout conversions
+    # (1.2x the images/s of a CPU training step, benchmarks/dope.py); the checkpoint's weights load either way
+    model.to(device, memory_format=torch.channels_last)
     optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
@@ -331,6 +333,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
             t0 = time.perf_counter()
             for batch, tensors in enumerate(loader):
                 image, beliefs, affinities, distance, weight = (t.to(device, non_blocking=True) for t in tensors)
+                image = image.contiguous(memory_format=torch.channels_last)
                 with torch.autocast(device.type, dtype=torch.float16, enabled=use_amp):
                     outputs = net(image)
                 loss = dope_loss([tuple(t.float() for t in stage) for stage in outputs], beliefs, affinities,
