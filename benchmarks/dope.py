@@ -1,4 +1,4 @@
-"""DOPE speed: training images/s (full and light variants, CPU and CUDA when present) and inference latency at
+"""DOPE speed: training images/s of each variant (CPU, and CUDA when present) and inference latency at
 640x480: ONNX on the CPU (onnxruntime) and, with CUDA, torch on the GPU in half precision (``DopeModel``'s path).
 
 Usage: python benchmarks/dope.py [--variants full light pretrained] [--devices cpu cuda] [--steps 5] [--runs 10]
