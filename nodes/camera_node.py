@@ -25,13 +25,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from nodes.conversions import IDENTITY, camera_info, matrix_to_transform, numpy_to_image
 from nodes.oak_camera import OakCamera
 from nodes.ros import Node, StaticTransformBroadcaster, declare, finish, msgs, run_node
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.io.images import read_rgb
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -54,11 +54,9 @@ class FolderSource:
                 self.finished = True
                 return None
             self.index = 0
-        image = cv2.imread(str(self.paths[self.index]), cv2.IMREAD_COLOR)
-        if image is None:
-            raise PegasusError(f"camera_node: cannot read {self.paths[self.index]}")
+        image = read_rgb(self.paths[self.index])
         self.index += 1
-        return np.ascontiguousarray(image[..., ::-1]), None, None
+        return image, None, None
 
     def intrinsics(self, width: int, height: int):
         return None

@@ -77,7 +77,7 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     scene = dope_dataset / "train_pbr" / "000000"
     cameras, found = json.loads((scene / "scene_camera.json").read_text()), 0
     for im in range(4):  # same maps up to 1e-4 -> same poses
-        image = cv2.imread(str(scene / "rgb" / f"{im:06d}.jpg"))[..., ::-1].copy()
+        image = read_rgb(scene / "rgb" / f"{im:06d}.jpg")
         K = np.array(cameras[str(im)]["cam_K"]).reshape(3, 3)
         a, b = onnx_model.estimate(image, K), torch_model.estimate(image, K)
         assert len(a) == len(b)
@@ -361,7 +361,7 @@ def test_a_centroid_pnp_cannot_solve_is_kept_when_depth_confirms_it(dope_dataset
 
     model = DopeModel(overfit_dope / "last.pt")
     frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
-    image = cv2.imread(str(frame.image))[..., ::-1].copy()
+    image = read_rgb(frame.image)
     monkeypatch.setattr(dope_training.infer, "solve_pose", lambda *args, **kwargs: None)
     assert model.estimate(image, frame.K) == []
     poses = model.estimate(image, frame.K, depth_m=frame.read_depth())
