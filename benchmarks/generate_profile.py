@@ -2,10 +2,11 @@
 demo wooden table, contact shadows, appearance randomisation, distractors) in one process, each stage of
 ``dataset.generate`` timed (wall clock, summed over the run) and shown per frame beside the frame's total.
 
-Usage: python benchmarks/generate_profile.py [--scenes 3] [--frames 10] [--objects demo|DIR/models] [--device cpu]
+Usage: python benchmarks/generate_profile.py [--scenes 3] [--frames 10] [--objects demo|DIR/models] [--count 1]
+    [--device cpu]
 
-``--objects DIR`` takes the objects from a BOP ``models`` folder instead (``obj_*.ply`` in mm, imported once):
-the frame cost of large scanned meshes. Stages that run on the writer threads (image encoding and writing)
+``--objects DIR`` takes the objects from a BOP ``models`` folder instead (``obj_*.ply`` in mm, imported once; up to
+eight models, ``--count`` instances of each in every scene): the frame cost of large scanned meshes. Stages that run on the writer threads (image encoding and writing)
 overlap the next frame's render; they are listed apart.
 """
 
@@ -74,6 +75,7 @@ def main():
     parser.add_argument("--scenes", type=int, default=3)
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--objects", default="demo", help="demo, or a BOP models folder (obj_*.ply, mm)")
+    parser.add_argument("--count", type=int, default=1, help="instances of each model of --objects DIR per scene")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs")
@@ -86,8 +88,9 @@ def main():
             taken = max(m.obj_id or 0 for m in lib.manifests())  # the demo objects' ids come first
             for ply in plys:
                 import_mesh(ply, f"m{ply.stem[4:]}", "object", lib, obj_id=taken + int(ply.stem[4:]), scale=0.001)
-            objects = "[" + ", ".join(f"{{asset: m{p.stem[4:]}, count: [1, 1]}}" for p in plys) + "]"
-            what = f"{len(plys)} objects of {args.objects}"
+            objects = "[" + ", ".join(f"{{asset: m{p.stem[4:]}, count: [{args.count}, {args.count}]}}"
+                                      for p in plys) + "]"
+            what = f"{args.count} x {len(plys)} objects of {args.objects}"
         common = [f"library={lib.root}", "workers=1", f"device={args.device}", "environments=[wooden_table]",
                   "min_objects=3", f"objects={objects}"]
         gen.generate(load_config(None, [f"output={tmp}/warm", *common, "scenes=1", "frames_per_scene=1"]))

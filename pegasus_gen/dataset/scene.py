@@ -186,7 +186,7 @@ def object_depth_window(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: n
     K_window = K_canvas.copy()
     K_window[0, 2] -= x0
     K_window[1, 2] -= y0
-    return bop.CanvasWindow(model.depth(K_window, T_cam_obj, x1 - x0, y1 - y0).astype(np.float32), int(x0), int(y0))
+    return bop.CanvasWindow(model.depth(K_window, T_cam_obj, x1 - x0, y1 - y0), int(x0), int(y0))
 
 
 def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> list[np.ndarray]:

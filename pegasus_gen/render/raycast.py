@@ -21,26 +21,33 @@ class MeshRaycaster:
                                  o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
 
     def depth(self, K: np.ndarray, T_cam_mesh: np.ndarray, width: int, height: int) -> np.ndarray:
-        """[H, W] z-depth (mesh units) seen by the pinhole camera ``K`` [3, 3] at ``T_cam_mesh`` [4, 4] (mesh
-        frame -> camera, same units); 0 where a pixel's ray misses the mesh. One ray per pixel centre."""
-        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        dirs_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(-1, 3)
-        R_mesh_cam = np.asarray(T_cam_mesh)[:3, :3].T
-        origin = -R_mesh_cam @ np.asarray(T_cam_mesh)[:3, 3]
-        # directions have unit z in the camera, so the ray parameter of a hit is its z-depth
-        hits = self.first_hits(origin, dirs_cam @ R_mesh_cam.T)
-        return np.where(np.isfinite(hits), hits, 0.0).reshape(height, width)
+        """[H, W] float32 z-depth (mesh units) seen by the pinhole camera ``K`` [3, 3] at ``T_cam_mesh`` [4, 4]
+        (mesh frame -> camera, same units); 0 where a pixel's ray misses the mesh. One ray per pixel centre."""
+        R_mesh_cam = np.asarray(T_cam_mesh, np.float64)[:3, :3].T
+        origin = -R_mesh_cam @ np.asarray(T_cam_mesh, np.float64)[:3, 3]
+        # the ray through pixel (u, v), R_mesh_cam [(u - cx) / fx, (v - cy) / fy, 1], is linear in u and v; its unit
+        # z in the camera makes the ray parameter of a hit its z-depth
+        du, dv = R_mesh_cam[:, 0] / K[0, 0], R_mesh_cam[:, 1] / K[1, 1]
+        d0 = R_mesh_cam[:, 2] - K[0, 2] * du - K[1, 2] * dv
+        rows = (np.arange(height)[:, None] * dv + d0).astype(np.float32)  # [H, 3]
+        directions = np.arange(width, dtype=np.float32)[None, :, None] * du.astype(np.float32) + rows[:, None, :]
+        hits = self.cast(origin, directions)
+        return np.where(np.isfinite(hits), hits, np.float32(0.0))
 
     def first_hits(self, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """[N] ray parameter t of the first hit of each ray origin [3] + t directions [N, 3]; inf on a miss
         (with unit directions, t is the distance)."""
-        return self.cast(np.broadcast_to(origin, np.shape(directions)), directions)
+        return self.cast(origin, directions)
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """[N] ray parameter t of the first hit of each ray origins[i] [N, 3] + t directions[i] [N, 3]; inf on
-        a miss."""
-        rays = np.concatenate([origins, directions], 1).astype(np.float32)
-        return self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+        """float32 [...] ray parameter t of the first hit of each ray origins + t directions (arrays [..., 3]
+        broadcast against each other, e.g. one origin [3] and directions [N, 3]); inf on a miss."""
+        shape = np.broadcast_shapes(np.shape(origins), np.shape(directions))
+        rays = np.empty((*shape[:-1], 6), np.float32)  # filled in place: no float64 copies of every ray
+        rays[..., :3] = origins
+        rays[..., 3:] = directions
+        hits = self.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))["t_hit"]
+        return hits.numpy().reshape(shape[:-1])
 
     def view_coverage(self, K: np.ndarray, T_cam_world: np.ndarray, width: int, height: int,
                       samples: tuple[int, int] = (16, 12)) -> float:

@@ -64,7 +64,7 @@ def apply_sensor(rgb: np.ndarray, effects: SensorEffects, rng: np.random.Generat
         if kernel.size > 1:
             out = cv2.filter2D(out, -1, kernel, borderType=cv2.BORDER_REFLECT)
     if effects.shot_noise > 0 or effects.read_noise > 0:
-        std = np.sqrt(effects.shot_noise**2 * np.clip(out, 0, None) + effects.read_noise**2)
-        out = out + (rng.standard_normal(out.shape) * std).astype(np.float32)
+        std = np.sqrt(np.float32(effects.shot_noise**2) * np.clip(out, 0, None) + np.float32(effects.read_noise**2))
+        out = out + rng.standard_normal(out.shape, dtype=np.float32) * std
     out = np.clip(out, 0.0, 1.0)
     return out if effects.gamma == 1.0 else out ** np.float32(1.0 / effects.gamma)

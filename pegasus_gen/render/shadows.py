@@ -91,17 +91,15 @@ def _blocked_fraction(points: np.ndarray, directions: np.ndarray, scene: MeshRay
     """[N] fraction of the rays from each point [N, 3] along ``directions`` [R, 3] that hit ``scene`` before
     ``max_t``; with ``spin`` each point's set of directions is turned by a random angle about z (no banding
     from one shared set)."""
-    n, r = len(points), len(directions)
+    n = len(points)
+    d = np.asarray(directions, np.float32)
     if spin:
         angle = rng.uniform(0.0, 2.0 * np.pi, n)[:, None]
-        c, s = np.cos(angle), np.sin(angle)
-        d = np.stack([c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1],
-                      np.broadcast_to(directions[:, 2], (n, r))], axis=-1)
-    else:
-        d = np.broadcast_to(directions, (n, r, 3))
-    origins = np.repeat(points, r, axis=0)
-    t = scene.cast(origins, d.reshape(-1, 3))
-    return (t < max_t).reshape(n, r).mean(axis=1)
+        c, s = np.cos(angle).astype(np.float32), np.sin(angle).astype(np.float32)
+        d = np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], np.broadcast_to(d[:, 2], (n, len(d)))],
+                     axis=-1)
+    t = scene.cast(np.asarray(points)[:, None, :], d)  # [N, R]: every point with every direction
+    return (t < max_t).mean(axis=1)
 
 
 def occlusion(points: np.ndarray, occluders: Sequence[trimesh.Trimesh], params: ShadowParams,
@@ -126,6 +124,14 @@ def darken(cloud: SplatCloud, factor: np.ndarray) -> SplatCloud:
     return transform_colour(cloud, np.asarray(factor, np.float64)[:, None, None] * np.eye(3))
 
 
+def _enclosing_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre [3], radius): a sphere about the middle of the points' [N, 3] bounding box that holds them all. Not
+    the smallest such sphere, which costs a convex hull per placed object and scene (20 ms each): about an irregular
+    object a few more splats are shaded, none is missed."""
+    centre = (points.min(axis=0) + points.max(axis=0)) / 2
+    return centre, float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
+
+
 def _near(cloud: SplatCloud, spheres: list[tuple[np.ndarray, float]], radius: float) -> np.ndarray:
     """[N] bool: splats within ``radius`` of any sphere (centre [3], radius)."""
     near = np.zeros(len(cloud), bool)
@@ -139,7 +145,7 @@ def contact_shadows(environment: SplatCloud, objects: Sequence[SplatCloud], mesh
     """The environment's and the placed objects' splats (world frame) darkened by the placed objects' meshes
     (``meshes[k]``: object k's surface in the world frame): the environment by all of them, each object by
     the others. Returns (environment, objects)."""
-    spheres = [(m.bounding_sphere.primitive.center, m.bounding_sphere.primitive.radius) for m in meshes]
+    spheres = [_enclosing_sphere(np.asarray(m.vertices)) for m in meshes]
 
     def shade(cloud: SplatCloud, occluders: list[trimesh.Trimesh], others: list) -> SplatCloud:
         near = _near(cloud, others, params.radius)
