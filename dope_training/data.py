@@ -159,7 +159,7 @@ def load_ndds(folder: str | Path, classes, min_visibility: float = 0.1) -> list[
 @dataclass
 class Augment:
     """Random crop/scale/rotation (one affine warp, constant random-colour borders: no mirrored copies of
-    objects), colour jitter and noise."""
+    objects), optics blur, colour jitter and noise."""
 
     scale: tuple[float, float] = (0.75, 1.25)  # relative to fitting the image's shorter side into the crop
     rotation_deg: float = 15.0
@@ -169,6 +169,7 @@ class Augment:
     saturation: float = 0.25
     hue_deg: float = 6.0
     noise_std: float = 4.0  # grey levels
+    blur_px: float = 0.0  # half the crops blurred by a Gaussian of std drawn from 0..this (crop px); 0: none
     enabled: bool = True
 
 
@@ -207,7 +208,10 @@ def occluder_mask(size: int, box: np.ndarray, rng: np.random.Generator) -> np.nd
 
 
 def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> np.ndarray:
-    """[H, W, 3] uint8 RGB with random brightness, contrast, saturation, hue and Gaussian noise."""
+    """[H, W, 3] uint8 RGB, for half the images (with ``aug.blur_px`` > 0) blurred as a softer lens would, with
+    random brightness, contrast, saturation, hue and Gaussian noise (the sensor's, after the blur)."""
+    if aug.blur_px > 0 and rng.uniform() < 0.5:
+        image = cv2.GaussianBlur(image, (0, 0), sigmaX=max(rng.uniform(0, aug.blur_px), 1e-3))
     hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV).astype(np.float32)
     hsv[..., 0] = (hsv[..., 0] + rng.uniform(-aug.hue_deg, aug.hue_deg) / 2) % 180  # OpenCV hue: 0..180
     hsv[..., 1] *= 1 + rng.uniform(-aug.saturation, aug.saturation)

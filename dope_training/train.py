@@ -301,7 +301,9 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
         if world > 1 else model
 
-    dataset = DopeDataset(samples, cfg.size, Augment(enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
+    dataset = DopeDataset(samples, cfg.size, Augment(brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
+                                               saturation=cfg.colour_jitter, blur_px=cfg.blur_px,
+                                               enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
     workers = loader_workers(cfg, device)  # started once: the sampler's keys carry the epoch to them

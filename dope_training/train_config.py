@@ -53,6 +53,10 @@ class TrainConfig(BaseModel):
     occluders: float = Field(0.0, ge=0.0, le=1.0, description="share of the crops on an instance with a cut-out of "
                              "another training image pasted over part of it (its targets kept): partly hidden "
                              "objects")
+    blur_px: float = Field(0.0, ge=0.0, description="half the crops blurred by a Gaussian whose std is drawn from "
+                           "0 to this, network-input px: a real camera's softer optics (0: no blur)")
+    colour_jitter: float = Field(0.25, ge=0.0, lt=1.0, description="brightness, contrast and saturation each "
+                                 "scaled by a factor drawn from 1 -/+ this")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
                                             "nominal-scale crops around the instances only)")
     device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto: CUDA when torch sees a GPU")

@@ -122,6 +122,31 @@ def test_augmented_crops_carry_their_keypoints_and_plain_borders(tmp_path):
 
 
 
+def test_blur_softens_about_half_the_crops_and_moves_nothing(tmp_path):
+    image = np.zeros((240, 320, 3), np.uint8)
+    image[:, 160:] = 255  # one sharp vertical edge through the instance
+    keypoints = np.array([[140.0, 100.0], [180.0, 100.0], [140.0, 140.0], [180.0, 140.0]] * 2 + [[160.0, 120.0]])
+    cv2.imwrite(str(tmp_path / "im.png"), image)
+    sample = Sample(tmp_path / "im.png", np.eye(3), [keypoints], [1], [1.0])
+    plain = dict(brightness=0, contrast=0, saturation=0, hue_deg=0, noise_std=0)  # only the blur changes pixels
+    sharp = DopeDataset([sample], size=128, augment=Augment(**plain))
+    soft = DopeDataset([sample], size=128, augment=Augment(**plain, blur_px=2.0))
+
+    def steepest(crop):  # the largest step between neighbouring pixels along x
+        return np.abs(np.diff(crop.astype(int), axis=1)).max()
+
+    blurred = 0
+    for epoch in range(40):
+        a, keys_a, M_a = sharp.item(0, epoch)
+        b, keys_b, M_b = soft.item(0, epoch)
+        assert np.array_equal(M_a, M_b) and np.array_equal(keys_a, keys_b)  # the same crop, the same targets
+        if not np.array_equal(a, b):
+            blurred += 1
+            assert steepest(b) < steepest(a)
+            assert abs(b.mean() - a.mean()) < 2.0  # blur spreads the light, it adds or removes none
+    assert 10 <= blurred <= 30  # half of 40 draws: 20 +- 3 standard deviations
+
+
 def test_negative_crops_look_away_from_the_instances_and_keep_the_targets_of_any_they_hold(tmp_path):
     image = np.full((480, 640, 3), 40, np.uint8)
     keypoints = np.array([[60.0, 60.0]] * 8 + [[60.0, 60.0]])  # one instance near the top-left corner
