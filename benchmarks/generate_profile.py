@@ -6,8 +6,8 @@ Usage: python benchmarks/generate_profile.py [--scenes 3] [--frames 10] [--objec
     [--device cpu]
 
 ``--objects DIR`` takes the objects from a BOP ``models`` folder instead (``obj_*.ply`` in mm, imported once; up to
-eight models, ``--count`` instances of each in every scene): the frame cost of large scanned meshes. Stages that run on the writer threads (image encoding and writing)
-overlap the next frame's render; they are listed apart.
+eight models, ``--count`` instances of each in every scene): the frame cost of large scanned meshes. Stages that
+run on the writer threads (image encoding and writing) overlap the next frame's render; they are listed apart.
 """
 
 from __future__ import annotations
