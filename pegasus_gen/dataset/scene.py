@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import trimesh
 
 from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.dataset.appearance import (
@@ -64,6 +63,7 @@ class Assets:
     environments: list[Asset]
     per_spec: list[Asset]  # the object asset of each entry of cfg.objects, in order
     _raycasters: dict = field(default_factory=dict, repr=False)  # obj_id -> MeshRaycaster, built in this process
+    _hulls: dict = field(default_factory=dict, repr=False)  # obj_id -> [V, 3] convex hull vertices, ditto
 
     @property
     def objects(self) -> dict[int, Asset]:
@@ -76,8 +76,15 @@ class Assets:
             self._raycasters[obj_id] = MeshRaycaster(self.objects[obj_id].surface)
         return self._raycasters[obj_id]
 
+    def hull(self, obj_id: int) -> np.ndarray:
+        """[V, 3] the vertices of the convex hull of object ``obj_id``'s surface (m, object frame), once per process:
+        few points whose projection bounds the object's as tightly as all of its vertices."""
+        if obj_id not in self._hulls:
+            self._hulls[obj_id] = np.asarray(self.objects[obj_id].surface.convex_hull.vertices)
+        return self._hulls[obj_id]
+
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_raycasters": {}}
+        return {**self.__dict__, "_raycasters": {}, "_hulls": {}}
 
 
 def load_assets(cfg: GenerateConfig) -> Assets:
@@ -171,7 +178,8 @@ def object_depth_window(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: n
     projection of the model's vertices (the whole canvas when the model reaches behind the camera).
 
     ``model`` is the object's surface prepared for ray casting and ``vertices`` [V, 3] points (m, object frame)
-    whose hull holds it: its vertices, or the corners of its bounding box (a larger window, fewer points).
+    whose hull holds it: its vertices, its convex hull's (the same window, fewer points) or the corners of its
+    bounding box (a larger window).
     """
     pts = vertices @ T_cam_obj[:3, :3].T + T_cam_obj[:3, 3]
     if (pts[:, 2] <= 0.01).any():  # partly behind the camera: cast the whole canvas
@@ -326,20 +334,19 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             coco_images.append({"id": im_id, "file_name": rgb_name, "width": W, "height": H})
             gts, infos, dope_objects = [], [], []
             for gt_idx, i in enumerate(labelled):
-                asset = objects[i]
+                asset, obj_id = objects[i], objects[i].manifest.obj_id
                 T_cam_obj = T_cam_world @ poses[i]
-                window = object_depth_window(assets.raycaster(asset.manifest.obj_id),
-                                             trimesh.bounds.corners(asset.surface.bounds), T_cam_obj, K_canvas, W, H)
+                window = object_depth_window(assets.raycaster(obj_id), assets.hull(obj_id), T_cam_obj, K_canvas, W, H)
                 info, mask, visible = bop.gt_info_entry(window, out.depth, K, cfg.visib_delta)
                 name = f"{im_id:06d}_{gt_idx:06d}.png"
                 writer.image(scene_dir / "mask" / name, mask.astype(np.uint8) * 255)
                 writer.image(scene_dir / "mask_visib" / name, visible.astype(np.uint8) * 255)
-                gts.append(bop.pose_entry(T_cam_obj, asset.manifest.obj_id))
+                gts.append(bop.pose_entry(T_cam_obj, obj_id))
                 infos.append(info)
-                coco_instances.append(CocoInstance(im_id, asset.manifest.obj_id, mask, visible, info["visib_fract"]))
+                coco_instances.append(CocoInstance(im_id, obj_id, mask, visible, info["visib_fract"]))
                 if cfg.dope_json and info["px_count_visib"] > 0:
                     lo, hi = asset.surface.bounds
-                    dope_objects.append(dope_object(asset.name, asset.manifest.obj_id, gt_idx, T_cam_obj, poses[i], lo,
+                    dope_objects.append(dope_object(asset.name, obj_id, gt_idx, T_cam_obj, poses[i], lo,
                                                     hi - lo, K, info))
             scene_gt[str(im_id)] = gts
             scene_info[str(im_id)] = infos
