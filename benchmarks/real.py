@@ -1,7 +1,7 @@
 """From a real BOP dataset to a table: generated training data, one DOPE network per object, scored on the
 dataset's real photos (DOPE alone).
 
-Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 800] [--epochs 60]
+Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 2400] [--epochs 20]
        [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda]
        [--generate key=value ...] [--train key=value ...] --out OUT
 
@@ -157,8 +157,8 @@ def main() -> int:
     parser.add_argument("--real", required=True, help="BOP dataset root with real photos")
     parser.add_argument("--split", default="test")
     parser.add_argument("--objects", required=True, help="obj_ids, comma-separated")
-    parser.add_argument("--frames", type=int, default=800, help="training frames (all objects share them)")
-    parser.add_argument("--epochs", type=int, default=60)
+    parser.add_argument("--frames", type=int, default=2400, help="training frames (all objects share them)")
+    parser.add_argument("--epochs", type=int, default=20)
     parser.add_argument("--distance", type=float, nargs=2, default=(0.4, 1.4), help="camera distance range, m")
     parser.add_argument("--max-images", type=int, help="real images per scene to score (default: all)")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
