@@ -209,7 +209,7 @@ def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> li
     def score(T_cam_world: np.ndarray) -> float:
         eye = -T_cam_world[:3, :3].T @ T_cam_world[:3, 3]
         distances = np.linalg.norm(centres - eye, axis=1)
-        blocked = environment.first_hits(eye, (centres - eye) / distances[:, None]) < distances - BLOCKING_MARGIN
+        blocked = environment.cast(eye, (centres - eye) / distances[:, None]) < distances - BLOCKING_MARGIN
         coverage = environment.view_coverage(K, T_cam_world, W, H) if t.min_view_coverage > 0 else 1.0
         return coverage - float(blocked.any())  # any unblocked view beats every blocked one
 

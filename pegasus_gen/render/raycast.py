@@ -34,14 +34,10 @@ class MeshRaycaster:
         hits = self.cast(origin, directions)
         return np.where(np.isfinite(hits), hits, np.float32(0.0))
 
-    def first_hits(self, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """[N] ray parameter t of the first hit of each ray origin [3] + t directions [N, 3]; inf on a miss
-        (with unit directions, t is the distance)."""
-        return self.cast(origin, directions)
-
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """float32 [...] ray parameter t of the first hit of each ray origins + t directions (arrays [..., 3]
-        broadcast against each other, e.g. one origin [3] and directions [N, 3]); inf on a miss."""
+        broadcast against each other, e.g. one origin [3] and directions [N, 3]); inf on a miss (with unit
+        directions, t is the distance)."""
         shape = np.broadcast_shapes(np.shape(origins), np.shape(directions))
         rays = np.empty((*shape[:-1], 6), np.float32)  # filled in place: no float64 copies of every ray
         rays[..., :3] = origins
