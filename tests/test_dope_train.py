@@ -371,6 +371,7 @@ def test_a_centroid_pnp_cannot_solve_is_kept_when_depth_confirms_it(dope_dataset
     points = model.surface[0]
     for p in poses:  # each from the centroid's ray and the depth alone within 2 cm of a cup: nothing else found
         assert min(adds_error(points, p.refined, inst.T) for inst in frame.instances) < 0.02
+    assert len(poses) <= len([i for i in frame.instances if i.visib_fract > 0.0])
 
 
 def test_loader_workers_default_to_the_cores_on_cuda_and_two_on_the_cpu(monkeypatch):
