@@ -1,12 +1,13 @@
 """DOPE speed: training images/s of each variant (CPU, and CUDA when present) and inference latency at
-640x480: ONNX on the CPU (onnxruntime) and, with CUDA, torch on the GPU in half precision (``DopeModel``'s path).
+640x480: ONNX on the CPU (onnxruntime) and, with CUDA, torch on the GPU as ``DopeModel`` runs it (half precision,
+channels-last, cuDNN's autotuner).
 
 Usage: python benchmarks/dope.py [--variants full light pretrained] [--devices cpu cuda] [--steps 5] [--runs 10]
 Training is timed on random 3x{crop} images with random targets (the data pipeline is not included: it
 runs in loader processes beside the GPU); the first step is not timed. Crops: full 400 px batch 8 (DOPE
 uses 32 on a GPU), light 320 px batch 8, pretrained (the sim-to-real recipe's network) 128 px batch 8.
 Inference: the exported last stage on a 640x480 image (the input size the network sees when an image is not
-rescaled), median of ``--runs`` after one warm-up.
+rescaled), median of ``--runs`` after one warm-up (two on CUDA, where cuDNN's autotuner runs first).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import onnxruntime
 import torch
 
 from dope_training.export import export_onnx
+from dope_training.infer import inference_network, network_outputs
 from dope_training.model import DopeNetwork, ModelConfig, dope_loss
 from dope_training.recipe import CROP_PX
 
@@ -73,18 +75,16 @@ def onnx_latency_ms(variant: str, runs: int) -> float:
 
 
 def torch_latency_ms(variant: str, device: str, runs: int) -> float:
-    """Median ms of one 640x480 image through the network on torch (``DopeModel``'s path: half precision on
-    CUDA), the result copied to the host."""
-    model = DopeNetwork(ModelConfig.of(variant)).to(device).eval()
-    image = torch.rand(1, 3, 480, 640, device=device)
+    """Median ms of one 640x480 image through the network on torch, as ``DopeModel`` runs it (on CUDA: half
+    precision, channels-last, cuDNN's autotuner), the input copied from and the result to the host."""
+    model = inference_network(DopeNetwork(ModelConfig.of(variant)), torch.device(device))
+    image = np.random.default_rng(0).random((1, 3, 480, 640), dtype=np.float32)
     times = []
-    for _ in range(runs + 1):
+    for _ in range(runs + 2):  # the first two (the autotuner) not timed
         t0 = time.perf_counter()
-        with torch.inference_mode(), torch.autocast("cuda", dtype=torch.float16, enabled=device == "cuda"):
-            beliefs, affinities = model(image)[-1]
-        beliefs.float().cpu(), affinities.float().cpu()
+        network_outputs(model, image)
         times.append(time.perf_counter() - t0)
-    return 1000 * float(np.median(times[1:]))
+    return 1000 * float(np.median(times[2:]))
 
 
 def main() -> None:

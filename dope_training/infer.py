@@ -18,6 +18,7 @@ rotations), and it is kept when the depth confirms it.
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -102,6 +103,36 @@ def _metadata(meta: dict[str, str], key: str, parse, path: Path):
         raise PegasusError(f"{path}: metadata {key}={meta[key][:60]!r} is not what `pegasus export` writes") from None
 
 
+def inference_network(model: torch.nn.Module, device: torch.device) -> torch.nn.Module:
+    """``model`` (a DopeNetwork) on ``device`` as inference runs it: on CUDA in half precision (the tensor cores)
+    with channels-last activations and cuDNN's autotuner (the fastest convolution algorithms, found once per input
+    size), and :func:`network_outputs` runs each stage's two branches on two streams at once; on the CPU in
+    float32 as trained."""
+    model = model.to(device).eval()
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = True
+        model = model.half().to(memory_format=torch.channels_last)
+    return model
+
+
+def network_outputs(model: torch.nn.Module, x: np.ndarray) -> list[np.ndarray]:
+    """The last stage's outputs of an :func:`inference_network` for a network input ``x`` [1, 3, H, W] float32 in
+    [0, 1] (H, W multiples of STRIDE), float32 on the host: beliefs [1, 9, H/8, W/8], affinities [1, 16, H/8, W/8]
+    and, with a distance head, distance codes [1, 1, H/8, W/8]."""
+    weight = next(model.parameters())
+    layout = torch.channels_last if weight.is_cuda else torch.contiguous_format
+    with torch.inference_mode():
+        image = torch.from_numpy(x).to(weight.device, weight.dtype, memory_format=layout)
+        streams = _branch_streams(weight.device) if weight.is_cuda else None
+        return [t.float().cpu().numpy() for t in model(image, streams)[-1]]
+
+
+@functools.lru_cache(maxsize=None)
+def _branch_streams(device: torch.device) -> tuple:
+    """Two CUDA streams of ``device`` for the stages' two branches (made once per device)."""
+    return torch.cuda.Stream(device), torch.cuda.Stream(device)
+
+
 class DopeModel:
     """A trained network ready for images. ``path``: an ``.onnx`` export (onnxruntime) or a ``.pt`` training
     checkpoint (torch); ``device``: cpu, cuda or auto; ``use_distance_head``: place each pose at its distance
@@ -154,7 +185,7 @@ class DopeModel:
         if device == "cuda" and not torch.cuda.is_available():
             raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
         self.device = torch.device("cuda" if device != "cpu" and torch.cuda.is_available() else "cpu")
-        self.model = model_from_checkpoint(state).to(self.device)
+        self.model = inference_network(model_from_checkpoint(state), self.device)
         self.config = self.model.config
         self.object = TargetObject(**state["object"])
         self.short_side = int(state["train_config"]["size"])
@@ -186,9 +217,7 @@ class DopeModel:
         if self.model is None:
             outputs = self.session.run(None, {"image": x})
         else:
-            on_cuda = self.device.type == "cuda"  # half precision there: the tensor cores' speed
-            with torch.inference_mode(), torch.autocast("cuda", dtype=torch.float16, enabled=on_cuda):
-                outputs = [t.float().cpu().numpy() for t in self.model(torch.from_numpy(x).to(self.device))[-1]]
+            outputs = network_outputs(self.model, x)
         distance = outputs[2][0, 0] if len(outputs) == 3 else None
         return outputs[0][0], outputs[1][0], distance, (nw / w, nh / h)
 

@@ -91,6 +91,23 @@ def _branch(cin: int, cout: int, channels: int, first: bool, late_kernel: int, b
     return nn.Sequential(*layers)
 
 
+def _both(belief: nn.Module, affinity: nn.Module, x: torch.Tensor, streams: tuple | None):
+    """(belief(x), affinity(x)), on ``streams`` (two CUDA streams) at once when given."""
+    if streams is None:
+        return belief(x), affinity(x)
+    current = torch.cuda.current_stream()
+    for stream in streams:  # both start once x is ready, neither waits for the other
+        stream.wait_stream(current)
+    outputs = []
+    for branch, stream in zip((belief, affinity), streams):
+        with torch.cuda.stream(stream):
+            outputs.append(branch(x))
+    for out, stream in zip(outputs, streams):
+        current.wait_stream(stream)
+        out.record_stream(current)  # read on the current stream: its memory is not reused before that is done
+    return tuple(outputs)
+
+
 class DopeNetwork(nn.Module):
     """image [B, 3, H, W] RGB 0..1 (H, W multiples of 8) -> list over stages of
     (beliefs [B, 9, H/8, W/8], affinities [B, 16, H/8, W/8]); with ``distance_head`` the last stage's tuple
@@ -124,11 +141,13 @@ class DopeNetwork(nn.Module):
         self.register_buffer("mean", torch.tensor(c.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(c.std).view(1, 3, 1, 1), persistent=False)
 
-    def forward(self, image: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    def forward(self, image: torch.Tensor, streams: tuple | None = None) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """``streams``: two CUDA streams on which each stage's belief and affinity branches run at once (inference
+        on a large GPU, which one branch's small convolutions leave mostly idle); None: one after the other."""
         features = self.reduce(self.features((image - self.mean) / self.std))
         x, outputs = features, []
         for belief, affinity in zip(self.beliefs, self.affinities):
-            b, a = belief(x), affinity(x)
+            b, a = _both(belief, affinity, x, streams)
             outputs.append((b, a))
             x = torch.cat([b, a, features], dim=1)
         if self.distance is not None:

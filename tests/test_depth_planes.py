@@ -9,7 +9,7 @@ from conftest import random_cloud
 
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render import cpu as rasterizer_cpu
-from pegasus_gen.render.differentiable import depth_planes, world_factor
+from pegasus_gen.render.differentiable import depth_planes, world_covariance
 from pegasus_gen.render.renderer import project_cpu, render
 from pegasus_gen.splats import procedural as synthetic
 
@@ -17,7 +17,7 @@ from pegasus_gen.splats import procedural as synthetic
 def torch_planes(cloud, K, T, width, height) -> np.ndarray:
     means, quats, log_scales, K, T = (torch.from_numpy(np.asarray(a, np.float64))
                                       for a in (cloud.means, cloud.quats_wxyz, cloud.log_scales, K, T))
-    return depth_planes(means, world_factor(quats, log_scales), K, T, width, height).numpy()
+    return depth_planes(means, world_covariance(quats, log_scales), K, T, width, height).numpy()
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -24,3 +24,20 @@ def test_amp_training_on_cuda_learns_and_its_checkpoint_runs_on_the_cpu(dope_dat
         cpu = model(image)[-1][0].numpy()
         gpu = model.cuda()(image.cuda())[-1][0].cpu().numpy()
     assert np.isfinite(cpu).all() and np.abs(cpu - gpu).max() < 1e-2
+
+
+def test_inference_on_cuda_in_half_precision_matches_the_cpu():
+    """``DopeModel``'s CUDA path (half precision, channels-last) gives the CPU's float32 maps within half
+    precision's reach."""
+    from dope_training.infer import inference_network, network_outputs
+    from dope_training.model import DopeNetwork, ModelConfig
+
+    torch.manual_seed(0)
+    model = DopeNetwork(ModelConfig.of("light")).eval()
+    x = np.random.default_rng(0).random((1, 3, 240, 320), dtype=np.float32)
+    cpu = network_outputs(inference_network(model, torch.device("cpu")), x)
+    gpu = network_outputs(inference_network(model, torch.device("cuda")), x)
+    assert [a.shape for a in gpu] == [a.shape for a in cpu]
+    for a, b in zip(cpu, gpu):
+        scale = float(np.abs(a).max())
+        assert b.dtype == np.float32 and scale > 0 and np.abs(a - b).max() < 0.02 * scale, np.abs(a - b).max() / scale

@@ -173,25 +173,45 @@ def _camera_factors(means, M, K, T_cam_world, width, height):
     return z, RM, U, means2d
 
 
-def depth_planes(means, M, K, T_cam_world, width: int, height: int) -> torch.Tensor:
-    """Per splat (centres [N, 3], covariance factors M [N, 3, 3] of :func:`world_factor`) the plane (A, B, C)
+def world_covariance(quats_wxyz: torch.Tensor, log_scales: torch.Tensor) -> torch.Tensor:
+    """Per splat its world-frame covariance M M^T [N, 3, 3] (m^2), M of :func:`world_factor`."""
+    M = world_factor(quats_wxyz, log_scales)
+    return M @ M.transpose(1, 2)
+
+
+def depth_planes(means, cov, K, T_cam_world, width: int, height: int) -> torch.Tensor:
+    """Per splat (centres [N, 3], world covariances [N, 3, 3] of :func:`world_covariance`) the plane (A, B, C)
     [N, 3] of its depth over the image: on pixel (u, v) (OpenCV px) the
     splat's depth is A + B u + C v (m), the point of highest density on that pixel's ray in the affine camera
     model of the EWA projection, the depth rule of :func:`pegasus_gen.render.cpu.project` (its ``depth_grad``)
     without its clamp at EXTEND_MAX standard deviations. Blended with the splats' weights, the planes give a
     pixel's depth sum as sum(w A) + u sum(w B) + v sum(w C): how a rasteriser that blends feature channels
     linearly (gsplat) renders the CPU renderer's depth. Rows of splats behind the camera are finite but
-    meaningless.
+    meaningless. Written for a GPU: two GEMMs and elementwise work on contiguous [N] rows (the camera-frame
+    covariances as one product with kron(R, R)); run it in float64 (needle-like splats lose all
+    their digits to float32's cancellation).
     """
-    z, RM, U, means2d = _camera_factors(means, M, K, T_cam_world, width, height)
-    a = (U[:, 0] * U[:, 0]).sum(-1) + GRAD_EPS  # the 2D covariance U U^T
-    b = (U[:, 0] * U[:, 1]).sum(-1)
-    c = (U[:, 1] * U[:, 1]).sum(-1) + GRAD_EPS
-    cov_uz = (U * RM[:, 2, None, :]).sum(-1)  # [N, 2] covariance of (u, v) with z
+    R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    x, y, z = R @ means.T + t[:, None]
+    S = torch.kron(R, R) @ cov.reshape(-1, 9).T  # [9, N]: the camera-frame covariances R cov R^T, row-major
+    s00, s01, s02, s11, s12, s22 = S[0], S[1], S[2], S[4], S[5], S[8]
+    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
+                                                                float(cy))
+    rz = 1.0 / torch.where(z > 0, z, torch.ones_like(z))
+    # the EWA Jacobian at the direction clamped to the frustum widened by 30 % (gsplat's limits)
+    j00, j11 = fx * rz, fy * rz
+    j02 = -fx * rz * (x * rz).clamp(-lim_x_neg, lim_x_pos)
+    j12 = -fy * rz * (y * rz).clamp(-lim_y_neg, lim_y_pos)
+    cov_uz = j00 * s02 + j02 * s22  # covariance of (u, v) with z
+    cov_vz = j11 * s12 + j12 * s22
+    a = j00 * (j00 * s00 + 2 * j02 * s02) + j02 * j02 * s22 + GRAD_EPS  # the 2D covariance, undilated
+    b = j00 * (j11 * s01 + j12 * s02) + j02 * cov_vz
+    c = j11 * (j11 * s11 + 2 * j12 * s12) + j12 * j12 * s22 + GRAD_EPS
     det = a * c - b * b
-    dz_du = (c * cov_uz[:, 0] - b * cov_uz[:, 1]) / det
-    dz_dv = (a * cov_uz[:, 1] - b * cov_uz[:, 0]) / det
-    return torch.stack([z - dz_du * means2d[:, 0] - dz_dv * means2d[:, 1], dz_du, dz_dv], dim=-1)
+    dz_du = (c * cov_uz - b * cov_vz) / det
+    dz_dv = (a * cov_vz - b * cov_uz) / det
+    return torch.stack([z - dz_du * (fx * x * rz + cx) - dz_dv * (fy * y * rz + cy), dz_du, dz_dv], dim=-1)
 
 
 def project(means, quats_wxyz, log_scales, opacity_logits, sh, K, T_cam_world, width, height,
