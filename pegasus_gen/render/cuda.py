@@ -49,7 +49,8 @@ def _scene_on_gpu(parts, label_index, present, device) -> dict:
     means64 [N, 3] and cov64 [N, 3, 3] (float64, :func:`world_covariance`: the depth planes' inputs), and
     features [N, 3 + n_labels + 3] float32, gsplat's feature channels (colour and depth plane, written per
     frame; the one-hot labels of ``label_index`` written here), present [L] int32 (the labels of the dense
-    indices)."""
+    indices), camera [28] float64 (the frame's T_cam_world, gsplat's K and background, which the graphs read) and
+    graphs (the scene's CUDA graphs by key, :func:`_graphed`)."""
     refs = _SCENE.get("parts", ())
     if len(refs) == len(parts) and all(r() is p for r, p in zip(refs, parts)) and \
             np.array_equal(_SCENE["present_host"], present):
