@@ -106,11 +106,11 @@ def render_gsplat(parts, label_index, present, requested_index, K, T_cam_world, 
     g = _scene_on_gpu([p for p, _ in parts_kept], [idx for _, idx in parts_kept], present, device)
     # the camera and background in one transfer from pinned memory (a pageable copy waits for the GPU) into the
     # scene's camera buffer, which the captured graphs read
-    K_gsplat = np.asarray(K, np.float64) + [[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]]
+    K64 = np.asarray(K, np.float64)
+    K_gsplat = K64 + [[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]]
     packed = torch.empty(28, dtype=torch.float64, pin_memory=True)
     packed.numpy()[:] = np.concatenate([np.ravel(T_cam_world), K_gsplat.ravel(), background])
     g["camera"].copy_(packed, non_blocking=True)
-    K64 = np.asarray(K, np.float64)
     requested = tuple(int(i) for i in requested_index)
     with torch.no_grad():
         viewmats, Ks = _graphed(g["graphs"], ("features", K64.tobytes(), width, height),

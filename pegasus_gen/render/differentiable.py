@@ -146,31 +146,37 @@ def world_factor(quats_wxyz: torch.Tensor, log_scales: torch.Tensor) -> torch.Te
     return quat_to_rotmat(quats_wxyz) * torch.exp(log_scales)[:, None, :]
 
 
+def _ewa_jacobian(x, y, z, K, width, height):
+    """The EWA projection at camera-frame centres x, y, z [N] (m) for intrinsics K [3, 3] (px), its Jacobian taken
+    at the direction clamped to the frustum widened by 30 % (gsplat's limits). Returns (rz [N] 1 / z (1 where
+    z <= 0), the Jacobian's non-zero entries j00, j02, j11, j12 [N] (u = row 0, v = row 1; px/m), u, v [N] the
+    projected centres (OpenCV px))."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
+                                                                float(cy))
+    rz = 1.0 / torch.where(z > 0, z, torch.ones_like(z))
+    j02 = -fx * rz * (x * rz).clamp(-lim_x_neg, lim_x_pos)
+    j12 = -fy * rz * (y * rz).clamp(-lim_y_neg, lim_y_pos)
+    return rz, fx * rz, j02, fy * rz, j12, fx * x * rz + cx, fy * y * rz + cy
+
+
 def _camera_factors(means, M, K, T_cam_world, width, height):
     """The EWA projection of splats [N] (centres [N, 3], covariance factors M [N, 3, 3] of
     :func:`world_factor`) for one camera (K [3, 3] px, T_cam_world [4, 4]).
 
     Returns (z [N] camera-frame depth of the centres (m), RM [N, 3, 3] camera-frame covariance factor (covariance
     RM RM^T, m), U [N, 2, 3] image-plane factor (2D covariance U U^T, px^2, without eps2d), means2d [N, 2]
-    projected centres (OpenCV px)); rows of splats with z <= 0 are finite but meaningless. The Jacobian is taken
-    at the direction clamped to the frustum widened by 30 % (gsplat's limits).
+    projected centres (OpenCV px)); rows of splats with z <= 0 are finite but meaningless (:func:`_ewa_jacobian`).
     """
     R = T_cam_world[:3, :3]
     t = T_cam_world[:3, 3]
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     x, y, z = (means @ R.T + t).unbind(-1)
-    zs = torch.where(z > 0, z, torch.ones_like(z))
-    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
-                                                                float(cy))
-    tx = zs * (x / zs).clamp(-lim_x_neg, lim_x_pos)
-    ty = zs * (y / zs).clamp(-lim_y_neg, lim_y_pos)
-    rz = 1.0 / zs
+    _, j00, j02, j11, j12, u, v = _ewa_jacobian(x, y, z, K, width, height)
     # one GEMM for R M and the Jacobian's zeros skipped: batched 3x3 products are slow on a GPU (float64 most)
     RM = torch.einsum("ik,nkj->nij", R, M)
-    U = torch.stack([(fx * rz)[:, None] * RM[:, 0] - (fx * tx * rz * rz)[:, None] * RM[:, 2],
-                     (fy * rz)[:, None] * RM[:, 1] - (fy * ty * rz * rz)[:, None] * RM[:, 2]], dim=1)
-    means2d = torch.stack([fx * x * rz + cx, fy * y * rz + cy], dim=-1)
-    return z, RM, U, means2d
+    U = torch.stack([j00[:, None] * RM[:, 0] + j02[:, None] * RM[:, 2],
+                     j11[:, None] * RM[:, 1] + j12[:, None] * RM[:, 2]], dim=1)
+    return z, RM, U, torch.stack([u, v], dim=-1)
 
 
 def world_covariance(quats_wxyz: torch.Tensor, log_scales: torch.Tensor) -> torch.Tensor:
@@ -192,17 +198,10 @@ def depth_planes(means, cov, K, T_cam_world, width: int, height: int) -> torch.T
     their digits to float32's cancellation).
     """
     R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     x, y, z = R @ means.T + t[:, None]
     S = torch.kron(R, R) @ cov.reshape(-1, 9).T  # [9, N]: the camera-frame covariances R cov R^T, row-major
     s00, s01, s02, s11, s12, s22 = S[0], S[1], S[2], S[4], S[5], S[8]
-    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
-                                                                float(cy))
-    rz = 1.0 / torch.where(z > 0, z, torch.ones_like(z))
-    # the EWA Jacobian at the direction clamped to the frustum widened by 30 % (gsplat's limits)
-    j00, j11 = fx * rz, fy * rz
-    j02 = -fx * rz * (x * rz).clamp(-lim_x_neg, lim_x_pos)
-    j12 = -fy * rz * (y * rz).clamp(-lim_y_neg, lim_y_pos)
+    _, j00, j02, j11, j12, u, v = _ewa_jacobian(x, y, z, K, width, height)
     cov_uz = j00 * s02 + j02 * s22  # covariance of (u, v) with z
     cov_vz = j11 * s12 + j12 * s22
     a = j00 * (j00 * s00 + 2 * j02 * s02) + j02 * j02 * s22 + GRAD_EPS  # the 2D covariance, undilated
@@ -211,7 +210,7 @@ def depth_planes(means, cov, K, T_cam_world, width: int, height: int) -> torch.T
     det = a * c - b * b
     dz_du = (c * cov_uz - b * cov_vz) / det
     dz_dv = (a * cov_vz - b * cov_uz) / det
-    return torch.stack([z - dz_du * (fx * x * rz + cx) - dz_dv * (fy * y * rz + cy), dz_du, dz_dv], dim=-1)
+    return torch.stack([z - dz_du * u - dz_dv * v, dz_du, dz_dv], dim=-1)
 
 
 def project(means, quats_wxyz, log_scales, opacity_logits, sh, K, T_cam_world, width, height,
