@@ -215,9 +215,10 @@ def main() -> int:
         run = out / "runs" / f"obj_{i:06d}"
         started = (run / "last.pt").is_file()
         if not started or load_checkpoint(run / "last.pt")["epoch"] < args.epochs:  # new, or cut short: resumed
-            fields = {**train_fields(focal[i], args.epochs), "variant": args.variant, **parse_options(args.train)}
-            train(TrainConfig(data=[str(data)], object=str(i), out=str(run), device=args.device, seed=args.seed,
-                              **fields), resume=started)
+            fields = {**train_fields(focal[i], args.epochs), "variant": args.variant, "seed": args.seed,
+                      **parse_options(args.train)}  # --train seed=N: another training draw on the same data
+            train(TrainConfig(data=[str(data)], object=str(i), out=str(run), device=args.device, **fields),
+                  resume=started)
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+from dope_training.backgrounds import behind_objects, objects_alpha, photo_view
 from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets, mapped_focal
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
@@ -36,7 +37,8 @@ from pegasus_gen.io.images import read_rgb
 @dataclass
 class Sample:
     """One image: its path, K [3, 3] and per instance the 9 keypoints [9, 2] (px), obj_id, visibility and the
-    depth of its model box's centre (m, camera z; NaN where the data do not say: DOPE/NDDS folders)."""
+    depth of its model box's centre (m, camera z; NaN where the data do not say: DOPE/NDDS folders), and the
+    visible masks of every labelled instance in it, target or not (BOP's mask_visib; none in DOPE/NDDS folders)."""
 
     image: Path
     K: np.ndarray
@@ -44,6 +46,7 @@ class Sample:
     obj_ids: list[int] = field(default_factory=list)
     visibility: list[float] = field(default_factory=list)
     depths: list[float] = field(default_factory=list)
+    masks: list[Path] = field(default_factory=list)
 
 
 def resolve_objects(objects, boxes: dict, names: dict[str, int], where: str) -> list[int]:
@@ -106,6 +109,9 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
         check_K(frame.K, f"{where} (scene_camera.json)")
         sample = Sample(frame.image, frame.K)
         for inst in frame.instances:
+            mask = frame.scene / "mask_visib" / f"{frame.im_id:06d}_{inst.index:06d}.png"
+            if mask.is_file():
+                sample.masks.append(mask)
             visib = 1.0 if inst.visib_fract is None else inst.visib_fract
             if inst.obj_id in wanted and visib >= min_visibility:
                 T = inst.T if symmetry_axis is None else canonical_pose(inst.T, symmetry_axis)
@@ -235,16 +241,21 @@ class DopeDataset(torch.utils.data.Dataset):
     network must learn to find nothing (an instance the crop happens to hold keeps its targets). A share
     ``occluders`` of the crops centred on an instance get a cut-out of another sample's image (a random place in
     it, at its nominal scale; ``occluder_mask``'s shape) pasted over part of that instance, whose targets stay
-    whole: the network learns to read a partly hidden object's pose from what shows.
+    whole: the network learns to read a partly hidden object's pose from what shows. A share ``backgrounds``
+    of all crops (of samples with masks) show one of ``photos`` ([H, W, 3] uint8 RGB) behind the labelled objects
+    instead of the rendered environment and distractors (``backgrounds.behind_objects``).
     """
 
     def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
                  stride: int = 8, focal_px: float = 0.0, sigma_px: float = SIGMA_PX, negatives: float = 0.0,
-                 occluders: float = 0.0):
+                 occluders: float = 0.0, backgrounds: float = 0.0, photos: list[np.ndarray] | None = None):
+        if backgrounds > 0 and not photos:
+            raise PegasusError("backgrounds > 0 needs background photos")
         if size % stride:
             raise PegasusError(f"input size {size} must be a multiple of the network stride {stride}")
         self.samples, self.size, self.stride, self.seed, self.focal_px = samples, size, stride, seed, focal_px
         self.sigma_px, self.negatives, self.occluders = sigma_px, negatives, occluders
+        self.backgrounds, self.photos = backgrounds, photos or []
         self.augment = augment or Augment()
         self.epoch = 0
 
@@ -270,6 +281,9 @@ class DopeDataset(torch.utils.data.Dataset):
         crop = cv2.warpAffine(image, M, (self.size, self.size), flags=cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=border)
         moved = keypoints @ M[:, :2].T + M[:, 2]
+        if self.augment.enabled and sample.masks and self.backgrounds > 0 and rng.uniform() < self.backgrounds:
+            crop = behind_objects(crop, objects_alpha(sample.masks, M, self.size), photo_view(self.photos, self.size,
+                                                                                             rng))
         if (self.augment.enabled and chosen is not None and len(self.samples) > 1 and self.occluders > 0
                 and rng.uniform() < self.occluders):
             crop = self.occlude(crop, moved[chosen], index, rng)

@@ -37,6 +37,7 @@ import yaml
 from tqdm import tqdm
 
 from dope_training.backbone import load_pretrained
+from dope_training.backgrounds import load_photos
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
 from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
 from dope_training.model import (
@@ -267,7 +268,10 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
         torch.cuda.set_device(device)
     state = _prepare_output(cfg, resume)
     out = Path(cfg.out)
+    photos = load_photos(cfg.background_photos) if cfg.backgrounds > 0 else None
     samples, target = load_training_samples(cfg)
+    if photos and not any(s.masks for s in samples) and rank == 0:
+        print("note: backgrounds needs BOP visible masks (mask_visib), which these data lack: no crop gets a photo")
 
     torch.manual_seed(cfg.seed)
     architecture = ModelConfig.of(cfg.variant)
@@ -304,7 +308,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     dataset = DopeDataset(samples, cfg.size, Augment(brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
                                                saturation=cfg.colour_jitter, blur_px=cfg.blur_px,
                                                enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
-                          sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders)
+                          sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders,
+                          backgrounds=cfg.backgrounds, photos=photos)
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
     workers = loader_workers(cfg, device)  # started once: the sampler's keys carry the epoch to them
     loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=sampler, num_workers=workers,

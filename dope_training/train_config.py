@@ -53,6 +53,11 @@ class TrainConfig(BaseModel):
     occluders: float = Field(0.0, ge=0.0, le=1.0, description="share of the crops on an instance with a cut-out of "
                              "another training image pasted over part of it (its targets kept): partly hidden "
                              "objects")
+    backgrounds: float = Field(0.0, ge=0.0, le=1.0, description="share of the crops whose background (all but the "
+                               "labelled objects, by BOP's visible masks) is a random view of a real photograph: "
+                               "real-world textures where nothing is to be found")
+    background_photos: Optional[str] = Field(None, description="folder of photos (PNG/JPEG) for backgrounds; "
+                                             "default: the photographs bundled with scikit-image")
     blur_px: float = Field(0.0, ge=0.0, description="half the crops blurred by a Gaussian whose std is drawn from "
                            "0 to this, network-input px: a real camera's softer optics (0: no blur)")
     colour_jitter: float = Field(0.25, ge=0.0, lt=1.0, description="brightness, contrast and saturation each "

@@ -1,0 +1,90 @@
+"""Photographs behind the objects: a training crop's background (everything but the labelled objects' visible
+pixels: the environment, the procedural distractors) replaced by a random view of a real photograph, so that the
+network meets real-world textures (screens, plants, papers, cables) where it must find nothing.
+
+The photos are a folder of the user's own (any PNG/JPEG; a few dozen indoor photos are enough to start) or, by
+default, the photographs that ship inside scikit-image's wheel (``skimage.data``: a cat, a coffee cup, a rocket,
+a motorcycle in a workshop, microscopy, gravel, brick...; nothing is downloaded). Each use takes a random photo,
+scale (0.5-2x), rotation and place, mirrored half of the time, warped to the crop; the objects' masks, warped as
+the crop was and so soft at their edges, keep the rendered pixels in front.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import IMAGE_EXTENSIONS
+from pegasus_gen.io.images import read_rgb
+
+# the photographs (not drawings or test charts) bundled in scikit-image's wheel; stereo_motorcycle gives two
+SKIMAGE_PHOTOS = ("astronaut", "brick", "camera", "cell", "chelsea", "coffee", "coins", "grass", "gravel",
+                  "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket", "text")
+SCALE = (0.5, 2.0)  # photo pixels per crop pixel, drawn log-uniformly
+
+
+def _rgb(image: np.ndarray) -> np.ndarray:
+    """[H, W] or [H, W, 3|4] uint8 -> [H, W, 3] uint8 RGB."""
+    if image.ndim == 2:
+        return np.repeat(image[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(image[:, :, :3])
+
+
+def load_photos(folder: str | Path | None = None) -> list[np.ndarray]:
+    """Background photos [H, W, 3] uint8 RGB: every image in ``folder`` (searched recursively), or without one
+    the photographs bundled with scikit-image. A folder without images is a PegasusError."""
+    if folder:
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise PegasusError(f"{folder}: no such folder of background photos")
+        paths = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_EXTENSIONS)
+        if not paths:
+            raise PegasusError(f"{folder}: no images ({', '.join(IMAGE_EXTENSIONS)}) to use as backgrounds")
+        return [read_rgb(p) for p in paths]
+    import skimage.data
+
+    photos = [_rgb(getattr(skimage.data, name)()) for name in SKIMAGE_PHOTOS]
+    left, right, _ = skimage.data.stereo_motorcycle()
+    return [*photos, _rgb(left), _rgb(right)]
+
+
+def photo_view(photos: list[np.ndarray], size: int, rng: np.random.Generator) -> np.ndarray:
+    """A random view [size, size, 3] uint8 of one of ``photos``: random photo, scale, rotation, centre and
+    mirroring (reflected at the photo's borders)."""
+    photo = photos[rng.integers(len(photos))]
+    h, w = photo.shape[:2]
+    scale = np.exp(rng.uniform(*np.log(SCALE)))  # photo px per crop px
+    angle = rng.uniform(0, 2 * np.pi)
+    flip = -1.0 if rng.uniform() < 0.5 else 1.0
+    R = scale * np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]) @ np.diag([flip, 1.0])
+    centre = rng.uniform((0, 0), (w, h))
+    A = np.concatenate([R, (centre - R @ np.full(2, (size - 1) / 2))[:, None]], axis=1)  # crop px -> photo px
+    return cv2.warpAffine(photo, A, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_REFLECT_101)
+
+
+def objects_alpha(masks: list[Path], M: np.ndarray, size: int) -> np.ndarray:
+    """[size, size] float32 0..1: the union of the visible masks (image-sized PNGs, nonzero on the object) warped
+    into the crop by M [2, 3] (image -> crop px), bilinear so that its edges are soft as the crop's are."""
+    union = None
+    for path in masks:
+        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise PegasusError(f"{path}: cannot read this mask")
+        union = mask > 0 if union is None else union | (mask > 0)
+    if union is None:
+        return np.zeros((size, size), np.float32)
+    # closed by a pixel: neighbouring objects' masks can leave a seam of antialiased pixels that neither holds
+    union = cv2.morphologyEx(union.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    return cv2.warpAffine(union.astype(np.float32), M, (size, size), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+
+
+def behind_objects(crop: np.ndarray, alpha: np.ndarray, photo: np.ndarray) -> np.ndarray:
+    """``crop`` [S, S, 3] uint8 with ``photo`` [S, S, 3] uint8 where ``alpha`` [S, S] (0..1, the objects) is 0,
+    blended where it is fractional."""
+    a = alpha[:, :, None]
+    return np.clip(a * crop + (1.0 - a) * photo + 0.5, 0, 255).astype(np.uint8)

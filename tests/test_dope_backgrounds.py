@@ -1,0 +1,85 @@
+"""Photo backgrounds behind the objects in DOPE's training crops: the objects' pixels kept, everything else from a
+photo, the crop's geometry and targets unchanged; the photos load offline, from a folder or scikit-image."""
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from dope_training.backgrounds import load_photos, objects_alpha, photo_view
+from dope_training.data import Augment, DopeDataset, Sample, load_bop
+from pegasus_gen.errors import PegasusError
+
+PLAIN = Augment(brightness=0, contrast=0, saturation=0, hue_deg=0, noise_std=0)  # pixel values kept
+
+
+def test_objects_keep_their_pixels_and_the_rest_shows_the_photo(tmp_path):
+    image = np.full((300, 400, 3), 40, np.uint8)
+    mask = np.zeros((300, 400), np.uint8)
+    cv2.circle(mask, (200, 150), 45, 255, -1)
+    image[mask > 0] = (10, 120, 250)
+    cv2.imwrite(str(tmp_path / "im.png"), image[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "mask.png"), mask)
+    corners = np.array([[x, y] for x in (160.0, 240.0) for y in (110.0, 190.0)] * 2)
+    sample = Sample(tmp_path / "im.png", np.eye(3), [np.vstack([corners, [[200.0, 150.0]]])], [1], [1.0],
+                    [1.0], [tmp_path / "mask.png"])
+    photo = np.full((64, 64, 3), 200, np.uint8)
+    plain, pasted = (DopeDataset([sample], size=128, focal_px=1.0, augment=PLAIN, backgrounds=share, photos=[photo])
+                     for share in (0.0, 1.0))
+    for epoch in range(12):
+        plain.epoch = pasted.epoch = epoch
+        crop0, moved0, M0 = plain.item(0)
+        crop1, moved1, M1 = pasted.item(0)
+        assert np.array_equal(M0, M1) and np.array_equal(moved0, moved1)  # the same crop of the same instance
+        for a, b in zip(plain[0][1:], pasted[0][1:]):
+            assert torch.equal(a, b)  # every target untouched
+        alpha = objects_alpha(sample.masks, M1, 128)
+        inside, outside = alpha > 0.999, alpha < 0.001
+        assert inside.sum() > 500 and outside.sum() > 500
+        assert np.array_equal(crop1[inside], crop0[inside])  # the object as rendered
+        assert (crop1[outside] == 200).all() and not (crop0 == 200).all(axis=2).any()  # the photo, only there
+
+
+def test_bop_samples_carry_the_visible_masks_of_every_labelled_instance(library, tmp_path):
+    from pegasus_gen.dataset.config import load_config
+    from pegasus_gen.dataset.generate import generate
+
+    root = generate(load_config(None, [f"output={tmp_path / 'ds'}", f"library={library.root}", "scenes=1",
+                                       "frames_per_scene=1", "camera.width=160", "camera.height=120", "device=cpu",
+                                       "environments=[wooden_table]",
+                                       "objects=[{asset: 1, count: [1, 1]}, {asset: 7, count: [2, 2]}]"]))
+    [sample] = load_bop(root, [1], min_visibility=0.0)
+    assert sample.obj_ids == [1] and len(sample.masks) == 3  # the target's and both other objects'
+    scene = root / "train_pbr" / "000000"
+    union = np.zeros((120, 160), bool)
+    for path in sample.masks:
+        assert path.parent == scene / "mask_visib"
+        union |= cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0
+    alpha = objects_alpha(sample.masks, np.array([[1.0, 0, 0], [0, 1.0, 0]]), 120)[:, :120]
+    assert ((alpha > 0.5) == union[:, :120]).mean() > 0.99  # the union, closed by a pixel at most
+
+
+def test_photos_load_offline_from_scikit_image_or_a_folder(tmp_path):
+    photos = load_photos()
+    assert len(photos) >= 15 and all(p.ndim == 3 and p.shape[2] == 3 and p.dtype == np.uint8 for p in photos)
+    assert len({p.shape for p in photos}) > 3  # different photographs, not one repeated
+    for name, value in (("a.png", 30), ("sub/b.jpg", 90)):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        cv2.imwrite(str(tmp_path / name), np.full((50, 70, 3), value, np.uint8))
+    (tmp_path / "notes.txt").write_text("not an image")
+    assert sorted(int(p.mean()) for p in load_photos(tmp_path)) == [30, 90]
+    with pytest.raises(PegasusError, match="no such folder"):
+        load_photos(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(PegasusError, match="no images"):
+        load_photos(tmp_path / "empty")
+
+
+def test_photo_views_vary_in_place_scale_and_turn():
+    rng = np.random.default_rng(0)
+    photo = np.random.default_rng(1).integers(0, 256, (200, 300, 3), dtype=np.uint8)
+    views = [photo_view([photo], 64, rng) for _ in range(20)]
+    assert all(v.shape == (64, 64, 3) and v.dtype == np.uint8 for v in views)
+    assert len({v.tobytes() for v in views}) == 20
+    with pytest.raises(PegasusError, match="needs background photos"):
+        DopeDataset([], size=64, backgrounds=0.5)
