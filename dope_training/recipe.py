@@ -21,6 +21,7 @@ OBJECT_PX = 64.0  # the object's diameter in network-input pixels at the middle 
 MAX_ENLARGE = 2.0  # the network-input focal length is at most this many times the camera's fx
 CROP_PX = 128
 NEGATIVES = 0.3
+BACKGROUNDS = 0.5  # share of the crops with a real photograph behind the objects (docs/TRAINING.md run DD)
 # a real camera's softer optics and colours: half the crops blurred (std up to this, network-input px), brightness,
 # contrast and saturation within 1 -/+ COLOUR_JITTER (run AA in docs/TRAINING.md)
 BLUR_PX = 1.5
@@ -61,8 +62,9 @@ def training_camera(focal_px: float, camera: RealCamera) -> dict:
 
 def train_fields(focal_px: float, epochs: int) -> dict:
     """TrainConfig fields of the recipe: CROP_PX crops at ``focal_px``, the demo's optimiser settings,
-    NEGATIVES of the crops on random points of the image, blur and colour jitter as a real camera's, and a distance
-    head (the distance from how large the object looks, not from the spread of its corners)."""
+    NEGATIVES of the crops on random points of the image, BACKGROUNDS of them with a real photograph behind the
+    objects, blur and colour jitter as a real camera's, and a distance head (the distance from how large the object
+    looks, not from the spread of its corners)."""
     return {"size": CROP_PX, "focal_px": round(focal_px, 3), "epochs": epochs, "lr": 2e-3,
-            "schedule": "cosine", "peak_weight": 10.0, "negatives": NEGATIVES, "blur_px": BLUR_PX,
-            "colour_jitter": COLOUR_JITTER, "distance_head": True}
+            "schedule": "cosine", "peak_weight": 10.0, "negatives": NEGATIVES, "backgrounds": BACKGROUNDS,
+            "blur_px": BLUR_PX, "colour_jitter": COLOUR_JITTER, "distance_head": True}
