@@ -282,8 +282,8 @@ class DopeDataset(torch.utils.data.Dataset):
                               borderMode=cv2.BORDER_CONSTANT, borderValue=border)
         moved = keypoints @ M[:, :2].T + M[:, 2]
         if self.augment.enabled and sample.masks and self.backgrounds > 0 and rng.uniform() < self.backgrounds:
-            crop = behind_objects(crop, objects_alpha(sample.masks, M, self.size), photo_view(self.photos, self.size,
-                                                                                             rng))
+            alpha = objects_alpha(sample.masks, M, self.size)
+            crop = behind_objects(crop, alpha, photo_view(self.photos, self.size, rng))
         if (self.augment.enabled and chosen is not None and len(self.samples) > 1 and self.occluders > 0
                 and rng.uniform() < self.occluders):
             crop = self.occlude(crop, moved[chosen], index, rng)
