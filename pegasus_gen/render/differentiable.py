@@ -148,16 +148,16 @@ def world_factor(quats_wxyz: torch.Tensor, log_scales: torch.Tensor) -> torch.Te
 
 def _ewa_jacobian(x, y, z, K, width, height):
     """The EWA projection at camera-frame centres x, y, z [N] (m) for intrinsics K [3, 3] (px), its Jacobian taken
-    at the direction clamped to the frustum widened by 30 % (gsplat's limits). Returns (rz [N] 1 / z (1 where
-    z <= 0), the Jacobian's non-zero entries j00, j02, j11, j12 [N] (u = row 0, v = row 1; px/m), u, v [N] the
-    projected centres (OpenCV px))."""
+    at the direction clamped to the frustum widened by 30 % (gsplat's limits); splats with z <= 0 are taken at
+    z = 1. Returns (the Jacobian's non-zero entries j00, j02, j11, j12 [N] (u = row 0, v = row 1; px/m), u, v [N]
+    the projected centres (OpenCV px))."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(width, height, float(fx), float(fy), float(cx),
                                                                 float(cy))
     rz = 1.0 / torch.where(z > 0, z, torch.ones_like(z))
     j02 = -fx * rz * (x * rz).clamp(-lim_x_neg, lim_x_pos)
     j12 = -fy * rz * (y * rz).clamp(-lim_y_neg, lim_y_pos)
-    return rz, fx * rz, j02, fy * rz, j12, fx * x * rz + cx, fy * y * rz + cy
+    return fx * rz, j02, fy * rz, j12, fx * x * rz + cx, fy * y * rz + cy
 
 
 def _camera_factors(means, M, K, T_cam_world, width, height):
@@ -171,7 +171,7 @@ def _camera_factors(means, M, K, T_cam_world, width, height):
     R = T_cam_world[:3, :3]
     t = T_cam_world[:3, 3]
     x, y, z = (means @ R.T + t).unbind(-1)
-    _, j00, j02, j11, j12, u, v = _ewa_jacobian(x, y, z, K, width, height)
+    j00, j02, j11, j12, u, v = _ewa_jacobian(x, y, z, K, width, height)
     # one GEMM for R M and the Jacobian's zeros skipped: batched 3x3 products are slow on a GPU (float64 most)
     RM = torch.einsum("ik,nkj->nij", R, M)
     U = torch.stack([j00[:, None] * RM[:, 0] + j02[:, None] * RM[:, 2],
@@ -201,7 +201,7 @@ def depth_planes(means, cov, K, T_cam_world, width: int, height: int) -> torch.T
     x, y, z = R @ means.T + t[:, None]
     S = torch.kron(R, R) @ cov.reshape(-1, 9).T  # [9, N]: the camera-frame covariances R cov R^T, row-major
     s00, s01, s02, s11, s12, s22 = S[0], S[1], S[2], S[4], S[5], S[8]
-    _, j00, j02, j11, j12, u, v = _ewa_jacobian(x, y, z, K, width, height)
+    j00, j02, j11, j12, u, v = _ewa_jacobian(x, y, z, K, width, height)
     cov_uz = j00 * s02 + j02 * s22  # covariance of (u, v) with z
     cov_vz = j11 * s12 + j12 * s22
     a = j00 * (j00 * s00 + 2 * j02 * s02) + j02 * j02 * s22 + GRAD_EPS  # the 2D covariance, undilated
