@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 from dope_training.backgrounds import behind_objects, objects_alpha, photo_view
 from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets, mapped_focal
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
+from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, mask_name, model_boxes, object_names
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 from pegasus_gen.io.files import read_json
 from pegasus_gen.io.images import read_rgb
@@ -109,7 +109,7 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
         check_K(frame.K, f"{where} (scene_camera.json)")
         sample = Sample(frame.image, frame.K)
         for inst in frame.instances:
-            mask = frame.scene / "mask_visib" / f"{frame.im_id:06d}_{inst.index:06d}.png"
+            mask = frame.scene / "mask_visib" / mask_name(frame.im_id, inst.index)
             if mask.is_file():
                 sample.masks.append(mask)
             visib = 1.0 if inst.visib_fract is None else inst.visib_fract

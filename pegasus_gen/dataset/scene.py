@@ -338,7 +338,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
                 T_cam_obj = T_cam_world @ poses[i]
                 window = object_depth_window(assets.raycaster(obj_id), assets.hull(obj_id), T_cam_obj, K_canvas, W, H)
                 info, mask, visible = bop.gt_info_entry(window, out.depth, K, cfg.visib_delta)
-                name = f"{im_id:06d}_{gt_idx:06d}.png"
+                name = bop.mask_name(im_id, gt_idx)
                 writer.image(scene_dir / "mask" / name, mask.astype(np.uint8) * 255)
                 writer.image(scene_dir / "mask_visib" / name, visible.astype(np.uint8) * 255)
                 gts.append(bop.pose_entry(T_cam_obj, obj_id))

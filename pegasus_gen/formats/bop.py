@@ -23,6 +23,11 @@ from pegasus_gen.io.files import read_json, write_atomic
 IMAGE_EXTENSIONS = (".jpg", ".png", ".jpeg")
 
 
+def mask_name(im_id: int, gt_index: int) -> str:
+    """The file name of instance ``gt_index`` of image ``im_id`` in a scene's mask/ and mask_visib/ folders."""
+    return f"{im_id:06d}_{gt_index:06d}.png"
+
+
 def pose_entry(T_cam_obj: np.ndarray, obj_id: int) -> dict:
     """scene_gt entry: {"obj_id", "cam_R_m2c" (9, row-major), "cam_t_m2c" (3, mm)} of T_cam_obj [4, 4] (m)."""
     return {"obj_id": int(obj_id), "cam_R_m2c": [float(v) for v in np.asarray(T_cam_obj)[:3, :3].ravel()],
