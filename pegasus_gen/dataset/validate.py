@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from pegasus_gen.dataset.config import CONFIG_FILE
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import mask_name
 from pegasus_gen.io.files import parse_yaml, read_json
 from pegasus_gen.render.raycast import MeshRaycaster
 
@@ -163,8 +164,8 @@ def _check_image(scene: Path, im_id: int, gts, camera, infos, models, report: Re
         if any(k not in info for k in GT_INFO_KEYS):
             report.problems.append(f"{name}: scene_gt_info entry lacks one of {', '.join(GT_INFO_KEYS)}")
             continue
-        mask = _read_mask(scene / "mask" / f"{im_id:06d}_{gt_idx:06d}.png", depth.shape)
-        visib = _read_mask(scene / "mask_visib" / f"{im_id:06d}_{gt_idx:06d}.png", depth.shape)
+        mask = _read_mask(scene / "mask" / mask_name(im_id, gt_idx), depth.shape)
+        visib = _read_mask(scene / "mask_visib" / mask_name(im_id, gt_idx), depth.shape)
         report.instances += 1
         if (visib & ~mask).any():
             report.problems.append(f"{name}: mask_visib reaches outside mask")

@@ -11,7 +11,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.formats.bop import bop_frames, model_boxes
+from pegasus_gen.formats.bop import bop_frames, mask_name, model_boxes
 from pegasus_gen.formats.drawing import colour_of, draw_instance
 from pegasus_gen.io.files import write_atomic
 from pegasus_gen.io.images import read_rgb, write_image
@@ -67,7 +67,7 @@ def view(root: str | Path, out: str | Path, split: str = "train_pbr", max_images
             if inst.obj_id not in boxes:
                 missing.append(f"models_info.json: obj {inst.obj_id} (no box drawn)")
             bbox_min, bbox_size = boxes.get(inst.obj_id, (np.zeros(3), np.zeros(3)))
-            name = f"{frame.im_id:06d}_{inst.index:06d}.png"
+            name = mask_name(frame.im_id, inst.index)
             masks = [_mask(frame.scene / folder / name) for folder in ("mask", "mask_visib")]
             missing += [f"{frame.scene.name}/{folder}/{name}" for folder, m in zip(("mask", "mask_visib"), masks)
                         if m is None]
