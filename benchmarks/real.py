@@ -25,11 +25,15 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
 4. Per object: ``pegasus eval`` figures on the synthetic held-out set, which sets the detection score (the
    lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there and keeping
-   ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found there), then on the real
-   split with that score (``OUT/eval/obj_ID``: eval.json, the curve and the gallery of the worst images).
+   ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found there), then on the real split with that score
+   (``OUT/eval/obj_ID`` and ``OUT/eval_synthetic/obj_ID``: eval.json, the curve and the gallery of the worst
+   images); and the same again with DOPE's poses refined against the images (``pegasus eval --refine-rgb``: the
+   model's silhouette fitted to the photo's colour edges, scored by belief x outline support; RGB alone still)
+   in ``OUT/eval_rgb`` and ``OUT/eval_synthetic_rgb``.
 
-Writes ``OUT/real.json``, prints one line per object and ends with one line: ``real: mean ADD(-S) 0.1d recall R,
-AUC A, false positives per image F over N objects``.
+Writes ``OUT/real.json``, prints one line per object, one line ``real + RGB refinement: mean ADD(-S) 0.1d recall
+R, AUC A, false positives per image F over N objects`` and ends with one line: ``real: mean ADD(-S) 0.1d recall
+R, AUC A, false positives per image F over N objects`` (DOPE alone).
 """
 
 from __future__ import annotations
@@ -149,7 +153,28 @@ def figures(report: dict) -> dict:
     return {"metric": report["metric"], "recall_0_1d": round(r["recall_0_1d"], 4), "auc": round(r["auc_0_10cm"], 4),
             "false_positives_per_image": round(report["false_positives_per_image"], 3),
             "instances": report["instances"], "misses": report["misses"], "images": report["images"],
-            "found_poses": report["found_poses"]}
+            "min_score": report["min_score"], "found_poses": report["found_poses"]}
+
+
+def scored(model: DopeModel, held_out: Path, root: Path, split: str, max_images: int | None,
+           out: tuple[Path, Path], refine_rgb: bool) -> tuple[dict, dict]:
+    """Figures (``figures``) on the synthetic held-out set and on the real split, whose detection score is the
+    one the held-out set calibrates (``score_threshold``); the reports written to ``out`` (held-out, real folders:
+    ``write_eval_report``). With ``refine_rgb`` of the poses refined against the images."""
+    synthetic = evaluate(model, held_out, "train_pbr", refine_rgb=refine_rgb)
+    write_eval_report(synthetic, out[0])
+    min_score = score_threshold(synthetic, HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND)
+    report = evaluate(model, root, split, max_images=max_images, min_score=min_score, refine_rgb=refine_rgb)
+    write_eval_report(report, out[1])
+    return figures(synthetic), figures(report)
+
+
+def describe(name: str, figures: dict) -> str:
+    """One object's figures in words."""
+    return (f"{name} {figures['metric']} 0.1d recall {figures['recall_0_1d']:.3f}, AUC {figures['auc']:.3f}, "
+            f"{figures['false_positives_per_image']:.2f} false positives per image, {figures['misses']} of "
+            f"{figures['instances']} missed (min score {figures['min_score']:.2f}; "
+            f"{describe_found(figures['found_poses'])})")
 
 
 def main() -> int:
@@ -222,29 +247,29 @@ def main() -> int:
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
-        synthetic = evaluate(model, held_out, "train_pbr")
-        write_eval_report(synthetic, out / "eval_synthetic" / f"obj_{i:06d}")
-        min_score = score_threshold(synthetic, HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND)
-        report = evaluate(model, root, args.split, max_images=args.max_images, min_score=min_score)
-        write_eval_report(report, out / "eval" / f"obj_{i:06d}")
+        rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
+        for how, refine_rgb in (("", False), ("_rgb", True)):
+            where = (out / f"eval_synthetic{how}" / f"obj_{i:06d}", out / f"eval{how}" / f"obj_{i:06d}")
+            rows[i][f"synthetic{how}"], rows[i][f"real{how}"] = scored(model, held_out, root, args.split,
+                                                                        args.max_images, where, refine_rgb)
         times[f"evaluate obj {i}"] = time.monotonic() - t0
-        rows[i] = {"real": figures(report), "synthetic": figures(synthetic), "focal_px": focal[i],
-                   "diameter_m": diameters[i], "min_score": min_score}
-        r, s = rows[i]["real"], rows[i]["synthetic"]
-        print(f"obj {i}: real {r['metric']} 0.1d recall {r['recall_0_1d']:.3f}, AUC {r['auc']:.3f}, "
-              f"{r['false_positives_per_image']:.2f} false positives per image, {r['misses']} of {r['instances']} "
-              f"missed (min score {min_score:.2f}; {describe_found(r['found_poses'])}); synthetic held-out recall "
-              f"{s['recall_0_1d']:.3f}, AUC {s['auc']:.3f} ({describe_found(s['found_poses'])})", flush=True)
+        print(f"obj {i}: {describe('real', rows[i]['real'])}; {describe('refined', rows[i]['real_rgb'])}; synthetic "
+              f"held-out recall {rows[i]['synthetic']['recall_0_1d']:.3f}, AUC {rows[i]['synthetic']['auc']:.3f}, "
+              f"refined {rows[i]['synthetic_rgb']['recall_0_1d']:.3f}, {rows[i]['synthetic_rgb']['auc']:.3f}",
+              flush=True)
 
-    mean = {k: float(np.mean([rows[i]["real"][k] for i in ids])) for k in ("recall_0_1d", "auc",
-                                                                          "false_positives_per_image")}
+    mean, mean_rgb = ({k: float(np.mean([rows[i][key][k] for i in ids]))
+                       for k in ("recall_0_1d", "auc", "false_positives_per_image")} for key in ("real", "real_rgb"))
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
            "training_camera": cam, "frames": args.frames, "epochs": args.epochs, "distance_m": list(args.distance),
            "variant": args.variant, "clutter": clutter, "generate": args.generate, "train": args.train,
-           "objects": {str(i): rows[i] for i in ids}, "mean": mean, "seconds": times,
+           "objects": {str(i): rows[i] for i in ids}, "mean": mean, "mean_rgb_refined": mean_rgb, "seconds": times,
            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}"}
     (out / "real.json").write_text(json.dumps(doc, indent=1))
+    print(f"real + RGB refinement: mean ADD(-S) 0.1d recall {mean_rgb['recall_0_1d']:.3f}, AUC "
+          f"{mean_rgb['auc']:.3f}, false positives per image {mean_rgb['false_positives_per_image']:.2f} over "
+          f"{len(ids)} objects")
     print(f"real: mean ADD(-S) 0.1d recall {mean['recall_0_1d']:.3f}, AUC {mean['auc']:.3f}, false positives per "
           f"image {mean['false_positives_per_image']:.2f} over {len(ids)} objects")
     return 0

@@ -14,9 +14,13 @@ diameter d, from models_info), false positives per image, misses, pass rates at 
 AUC: the area under the pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0).
 With depth refinement
 (``refine``) the refined poses are matched and scored the same way, a rejected refinement being a miss.
-The report's ``estimates`` are the poses output for the evaluated images in BOP19's results form (scene_id,
-im_id, obj_id, score, R row-major, t in mm, time: the image's inference seconds): the refined poses the
-refinement accepted with ``refine``, else the PnP poses. Errors are computed over the vertices of the
+With refinement against the RGB image (``refine_rgb``: the silhouette of the dataset's model of the object
+fitted to the image's colour edges, ``dope_training.refine_rgb``) the whole report is that of the refined poses,
+each scored by its centroid's belief times the share of its outline the image supports
+(``RgbRefinement.support``), and ``min_score`` applies to that score. The report's ``estimates`` are the poses
+output for the evaluated images in BOP19's results form (scene_id, im_id, obj_id, score, R row-major, t in mm,
+time: the image's inference seconds): the refined poses the refinement accepted with ``refine``, else the PnP
+(or RGB-refined) poses. Errors are computed over the vertices of the
 dataset's ``models_eval`` (BOP's evaluation models), or of ``models`` without them.
 """
 
@@ -24,7 +28,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -32,6 +36,7 @@ import numpy as np
 from tqdm import tqdm
 
 from dope_training.infer import DopeModel
+from dope_training.refine_rgb import RgbRefineParams, decimated
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, models_info, read_model, result_row
 from pegasus_gen.formats.drawing import draw_instance
@@ -178,15 +183,19 @@ def describe_found(breakdown: dict) -> str:
 
 
 def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibility: float = 0.1,
-             max_images: int | None = None, min_score: float = 0.1, refine: bool = False) -> dict:
+             max_images: int | None = None, min_score: float = 0.1, refine: bool = False,
+             refine_rgb: bool = False) -> dict:
     """The report (see the module docstring) as a dict; ``max_images`` per scene. With ``refine`` every
     estimate is also refined with the frame's depth image (``DopeModel.estimate``) and the report gains
     ``refined``: the same figures for the refined poses, where an estimate the refinement rejects counts
-    as a miss (a robot would not act on it). ``frames`` lists per image its misses, false positives and
-    instances failing 0.1 d, for the gallery of the worst (``write_eval_report``)."""
+    as a miss (a robot would not act on it); with ``refine_rgb`` the report is that of the poses refined against
+    the image (see the module docstring). ``frames`` lists per image its misses, false positives and instances
+    failing 0.1 d, for the gallery of the worst (``write_eval_report``)."""
     root = Path(root)
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder (choose --split)")
+    if refine and refine_rgb:
+        raise PegasusError("choose one refinement: against depth or against the RGB image")
     obj = model.object
     info = models_info(root).get(obj.obj_id)
     if info is None:
@@ -200,6 +209,10 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     symmetric = info.symmetric or obj.symmetric
     diameter = info.diameter
     points = model_points(root, obj.obj_id)
+    mesh = None
+    if refine_rgb:
+        model_mesh = read_model(root, obj.obj_id)
+        mesh = decimated(model_mesh.vertices, model_mesh.faces, RgbRefineParams().max_faces)
     matches, refined_errors, false_positives, rejected, results, frames = [], [], 0, 0, [], []
     for frame in tqdm(list(bop_frames(root / split, max_images)), desc="eval", unit="img"):
         mine = [i for i in frame.instances if i.obj_id == obj.obj_id]
@@ -209,7 +222,11 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         image = images.read_rgb(frame.image)
         depth = frame.read_depth() if refine else None
         started = time.perf_counter()
-        estimates = model.estimate(image, frame.K, min_score=min_score, depth_m=depth)
+        estimates = model.estimate(image, frame.K, min_score=min_score, depth_m=depth, mesh=mesh)
+        if refine_rgb:
+            estimates = sorted((replace(e, T=e.rgb_refinement.T, score=e.score * e.rgb_refinement.support)
+                                for e in estimates), key=lambda e: -e.score)
+            estimates = [e for e in estimates if e.score >= min_score]
         seconds = time.perf_counter() - started
         for e in estimates:
             T = e.refined if refine else e.T
@@ -244,7 +261,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
               "detected": int(np.isfinite(add).sum()), "misses": int((~np.isfinite(add)).sum()),
               "false_positives": false_positives,
               "false_positives_per_image": false_positives / len(frames) if frames else 0.0,
-              "min_visibility": min_visibility, "min_score": min_score,
+              "min_visibility": min_visibility, "min_score": min_score, "rgb_refined": refine_rgb,
               "result": summary(adds if symmetric else add, diameter), "ADD": summary(add, diameter),
               "ADD-S": summary(adds, diameter), "found_poses": pose_breakdown(matches, symmetric),
               "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,

@@ -13,7 +13,8 @@ each pose is then refined against it (``refine.refine_multistart``), starting fr
 through the detected centroid at the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP
 cannot solve (too few corners joined it, or they put the object behind the camera) is then not lost: its
 refinement starts on the same ray with the object's own axes (the several-start refinement tries the other
-rotations), and it is kept when the depth confirms it.
+rotations), and it is kept when the depth confirms it. With the object's mesh instead, each solved pose is
+refined against the RGB image itself (``refine_rgb``: its silhouette fitted to the image's colour edges).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from dope_training.decode import find_keypoints
 from dope_training.model import check_memory, config_from_dict, memory_estimate
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
+from dope_training.refine_rgb import RgbRefinement, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, read_map
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
@@ -45,13 +47,15 @@ class ObjectPose:
     """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes) from DOPE + PnP (None
     when PnP could not solve its keypoints: then kept only because depth refinement found it), the
     centroid's belief, keypoints [9, 2] in image pixels (NaN where not found), the mean reprojection error
-    (px, NaN without PnP) and, when a depth image was given, the depth refinement (``refine.Refinement``)."""
+    (px, NaN without PnP) and, when a depth image was given, the depth refinement (``refine.Refinement``), or
+    when the object's mesh was, the refinement against the RGB image (``refine_rgb.RgbRefinement``)."""
 
     T: np.ndarray | None
     score: float
     keypoints: np.ndarray
     reprojection_error: float
     refinement: Refinement | None = None
+    rgb_refinement: RgbRefinement | None = None
 
     @property
     def refined(self) -> np.ndarray | None:
@@ -67,6 +71,9 @@ class ObjectPose:
             r = self.refinement
             out["refined"] = {"accepted": r.accepted, "R": r.T[:3, :3].tolist(), "t_m": r.T[:3, 3].tolist(),
                               "fitness": r.fitness, "rmse_m": r.rmse_m, "reason": r.reason}
+        if self.rgb_refinement is not None:
+            r = self.rgb_refinement
+            out["rgb_refined"] = {"R": r.T[:3, :3].tolist(), "t_m": r.T[:3, 3].tolist(), "support": r.support}
         return out
 
 
@@ -222,14 +229,20 @@ class DopeModel:
         return outputs[0][0], outputs[1][0], distance, (nw / w, nh / h)
 
     def estimate(self, image: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
-                 min_score: float = 0.1, depth_m: np.ndarray | None = None) -> list[ObjectPose]:
+                 min_score: float = 0.1, depth_m: np.ndarray | None = None,
+                 mesh: tuple[np.ndarray, np.ndarray] | None = None) -> list[ObjectPose]:
         """Poses of the object's instances in an RGB image [H, W, 3] uint8 seen with intrinsics K [3, 3]
         (and OpenCV distortion ``dist``), best score first; instances PnP cannot solve are left out. With
         ``depth_m`` [H, W] (metres, aligned to the image, 0 = none) each pose is also refined against it, and
-        an instance PnP cannot solve is kept (T None) when its refinement from the centroid's ray is accepted."""
+        an instance PnP cannot solve is kept (T None) when its refinement from the centroid's ray is accepted.
+        With ``mesh`` (the object's vertices [V, 3] in metres, model frame, and faces [F, 3]; best through
+        ``refine_rgb.decimated``) and no depth, each pose is also refined against the image (``refine_rgb``;
+        a pinhole camera: no ``dist``)."""
         if depth_m is not None and self.surface is None:
             raise PegasusError(f"{self.path}: this model carries no surface points of its object (trained on a "
                                "DOPE/NDDS folder), so it cannot be refined with depth")
+        if mesh is not None and (depth_m is not None or dist is not None):
+            raise PegasusError("refinement against the RGB image takes an undistorted image without depth")
         beliefs, affinities, distance, (sx, sy) = self.maps(image, K)
         if not self.use_distance_head:
             distance = None
@@ -249,5 +262,7 @@ class DopeModel:
                 pose.refinement = refine_multistart(start, depth_m, K, *self.surface, self.object.symmetry_axis)
                 if pose.T is None and not pose.refinement.accepted:
                     continue
+            elif mesh is not None:
+                pose.rgb_refinement = refine_rgb(image, K, T, *mesh)
             poses.append(pose)
         return poses

@@ -73,6 +73,11 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     refined = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9, refine=True)
     assert refined["result"] == report["result"] and refined["refined"]["ADD"]["pass_2cm"] == 1.0, refined["refined"]
     assert refined["refined"]["ADD"]["median_m"] < report["ADD"]["median_m"]  # depth sharpens DOPE's poses
+    rgb = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9, refine_rgb=True)
+    assert rgb["rgb_refined"] and rgb["instances"] == report["instances"] and rgb["misses"] == 0
+    assert rgb["ADD"]["pass_2cm"] == 1.0, rgb["ADD"]  # the image keeps right poses right
+    scores = {(m["im_id"], m["gt_index"]): m["score"] for m in report["per_instance"]}
+    assert all(0 < m["score"] <= scores[m["im_id"], m["gt_index"]] for m in rgb["per_instance"])  # belief x support
 
     scene = dope_dataset / "train_pbr" / "000000"
     cameras, found = json.loads((scene / "scene_camera.json").read_text()), 0

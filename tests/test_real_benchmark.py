@@ -56,17 +56,21 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
                              "--epochs", "1", "--device", "cpu", "--out", str(out)],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
-    last = result.stdout.strip().splitlines()[-1]
-    assert re.fullmatch(r"real: mean ADD\(-S\) 0\.1d recall \d\.\d{3}, AUC \d\.\d{3}, false positives per image "
-                        r"\d+\.\d{2} over 1 objects", last), last
+    before_last, last = result.stdout.strip().splitlines()[-2:]
+    line = r"mean ADD\(-S\) 0\.1d recall \d\.\d{3}, AUC \d\.\d{3}, false positives per image \d+\.\d{2} over 1 objects"
+    assert re.fullmatch(r"real \+ RGB refinement: " + line, before_last), before_last
+    assert re.fullmatch(r"real: " + line, last), last
     doc = json.loads((out / "real.json").read_text())
     figures = doc["objects"]["1"]["real"]
     assert figures["images"] == 3 and figures["instances"] == 3  # every test image scored, one cup in each
+    refined = doc["objects"]["1"]["real_rgb"]
+    assert refined["images"] == 3 and refined["instances"] == 3  # the same photos, scored after RGB refinement
     # the real set's other model is clutter in the training data (each scene holds it with probability 1/2: seeded)
     seen = {g["obj_id"] for p in (out / "data" / "train_pbr").glob("*/scene_gt.json")
             for gts in json.loads(p.read_text()).values() for g in gts}
     assert doc["clutter"] == [2] and seen == {1, 2}
     assert doc["training_camera"]["width"] % 8 == 0 and (out / "eval" / "obj_000001" / "eval.json").is_file()
+    assert json.loads((out / "eval_rgb" / "obj_000001" / "eval.json").read_text())["rgb_refined"]
     bad = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "99", "--out",
                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "obj_000099.ply" in bad.stderr

@@ -123,13 +123,14 @@ def cmd_eval(args) -> int:
         _output_file(args.bop_results, "--bop-results")
     model = DopeModel(args.model, device=args.device, use_distance_head=args.distance_head)
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
-                      min_score=args.min_score, refine=args.depth)
+                      min_score=args.min_score, refine=args.depth, refine_rgb=args.refine_rgb)
     json_path, png, gallery = write_eval_report(report, out)
     if args.bop_results:
         path = write_bop_results(args.bop_results, report["estimates"])
         print(f"BOP19 results ({len(report['estimates'])} estimates): {path}")
     r = report["result"]
-    print(f"{report['object']['name']}: {report['instances']} instances in {report['images']} images, "
+    print(f"{report['object']['name']}{' (refined against the images)' if args.refine_rgb else ''}: "
+          f"{report['instances']} instances in {report['images']} images, "
           f"{report['misses']} missed, {report['false_positives']} false positives "
           f"({report['false_positives_per_image']:.2f} per image)")
     print(f"{report['metric']}: recall at 0.1 d {r['recall_0_1d']:.3f}, AUC(0-10 cm) {r['auc_0_10cm']:.3f}, "
@@ -138,9 +139,9 @@ def cmd_eval(args) -> int:
     print(f"median of the estimates on an instance: {describe_found(report['found_poses'])}")
     if "refined" in report:
         r = report["refined"]["result"]
-        print(f"{report['metric']} with depth refinement: AUC(0-10 cm) {r['auc_0_10cm']:.3f}, pass 2/5/10 cm "
-              f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f} ({report['refined']['rejected']} "
-              "estimates rejected)")
+        print(f"{report['metric']} with depth refinement: recall at 0.1 d {r['recall_0_1d']:.3f}, AUC(0-10 cm) "
+              f"{r['auc_0_10cm']:.3f}, pass 2/5/10 cm {r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f} "
+              f"({report['refined']['rejected']} estimates rejected)")
     print(f"report: {json_path}    curve: {png}" + (f"    worst images: {gallery}" if gallery else ""))
     return 0
 
@@ -187,9 +188,13 @@ def add_commands(sub) -> None:
     p.add_argument("--split", default="train_pbr")
     p.add_argument("--min-visibility", type=float, default=0.1)
     p.add_argument("--max-images", type=int, help="per scene")
-    p.add_argument("--depth", action="store_true", help="also refine every estimate with the frame's depth image")
+    refine = p.add_mutually_exclusive_group()
+    refine.add_argument("--depth", action="store_true", help="also refine every estimate with the frame's depth image")
+    refine.add_argument("--refine-rgb", action="store_true", help="refine every estimate against the image (the "
+                        "silhouette of the dataset's model of the object fitted to its colour edges) and score it by "
+                        "its belief times the share of its outline the image supports; the report is of these poses")
     p.add_argument("--out", help="report folder (default: beside the model)")
     p.add_argument("--bop-results", metavar="CSV", help="also write every estimate as a BOP19 results file "
                    "(bop_toolkit's eval_bop19_pose.py scores it): with --depth the refined poses the refinement "
-                   "accepted, else the PnP poses")
+                   "accepted, with --refine-rgb the RGB-refined poses, else the PnP poses")
     p.set_defaults(func=cmd_eval)

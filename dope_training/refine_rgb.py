@@ -1,0 +1,255 @@
+"""Refine a DOPE pose of a rigid object against the RGB image alone: move the model until its silhouette's outline
+lies on the edge between the object's colours and its surroundings' (a region-based fit, as in PWP3D and SRT3D).
+
+DOPE reads the object's pose from nine keypoints in a coarse belief map: on real photos its distance is off by
+~5 % and its rotation by ~25 degrees (median), far from the 10 % of the diameter that BOP's recall asks. The
+outline of a silhouette pins both down: its size gives the distance (1 % of it is a pixel on a 100 px object)
+and its shape the rotation, and no depth camera is needed.
+
+Each iteration:
+
+1. renders the model's silhouette (``mesh_silhouette`` on a decimated copy of the mesh) at the current pose in
+   a region of interest around it, and takes ``lines`` points evenly along its outer contour with their outward
+   normals;
+2. learns the colours of the object (inside the silhouette, eroded) and of its surroundings (a band outside it)
+   as two RGB histograms, and from them each pixel's probability of being the object;
+3. along each contour point's normal (``half_length_px`` each side) finds where the object ends: the offset
+   whose split into object inside and background outside explains the line's pixels best (a softmax over the
+   offsets' log-likelihoods gives the mean offset and its spread);
+4. moves the pose so that the rendered outline passes through these edge points: Gauss-Newton on the six pose
+   parameters (a twist in the camera frame) with the rendered silhouette's signed distance at the edge points as
+   residuals, its derivatives by finite differences of re-rendered silhouettes, each line weighted by the
+   inverse spread of its edge and down-weighted beyond ``huber_px`` (lines where an occluder ends the object).
+
+The search half-length shrinks stage by stage (``half_length_px``). Only the outline is used: a rotation that
+leaves the silhouette unchanged (a symmetric object turned about its axis, a face seen edge-on) stays as DOPE
+read it. ``support`` (the share of lines whose edge ended within ``support_px`` of the final outline) says how
+well the image confirms the final pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.render.silhouette import mesh_silhouette
+
+
+@dataclass
+class RgbRefineParams:
+    """The knobs of ``refine_rgb``."""
+
+    lines: int = 120  # contour points (lines along their normals) per iteration
+    half_length_px: tuple[float, ...] = (24.0, 24.0, 12.0, 12.0, 6.0, 6.0, 6.0)  # search half-length per iteration
+    bins: int = 16  # histogram bins per colour channel
+    band_px: int = 16  # width of the band outside the silhouette whose colours are the background's, pixels
+    erode_px: int = 2  # pixels eroded from the silhouette before its colours are taken as the object's
+    huber_px: float = 3.0  # residuals beyond this many pixels are down-weighted (Huber)
+    step_px: float = 2.0  # finite-difference steps move the outline by about this many pixels
+    damping: float = 0.2  # Levenberg damping on the normal equations, relative to their mean diagonal
+    min_contrast: float = 4.0  # lines whose edge explains them better by fewer nats weigh proportionally less
+    support_px: float = 2.0  # a line supports the final pose when its edge lies within this many pixels
+    max_faces: int = 1500  # the silhouette's mesh is decimated to at most this many triangles
+
+
+@dataclass
+class RgbRefinement:
+    """T [4, 4] refined T_cam_obj (metres, OpenCV camera frame), support (0..1: share of the contour's lines whose
+    edge lies within ``support_px`` of the refined outline), iterations run."""
+
+    T: np.ndarray
+    support: float
+    iterations: int
+
+
+def decimated(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh (vertices [V, 3] m, faces [F, 3]) simplified to at most ``max_faces`` triangles (quadric
+    decimation, open3d); unchanged when it has no more."""
+    if len(faces) <= max_faces:
+        return np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(vertices, np.float64)),
+                                     o3d.utility.Vector3iVector(np.asarray(faces, np.int32)))
+    mesh = mesh.simplify_quadric_decimation(target_number_of_triangles=max_faces)
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int64)
+
+
+def _twist(T: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """T [4, 4] moved by delta [6] (rotation vector about the object's centre in camera axes (rad), translation
+    (m), both in the camera frame): R' = exp(w) R, t' = t + v (the centre's rotation does not move it)."""
+    out = T.copy()
+    out[:3, :3] = Rotation.from_rotvec(delta[:3]).as_matrix() @ T[:3, :3]
+    out[:3, 3] = T[:3, 3] + delta[3:]
+    return out
+
+
+class _Roi:
+    """A window [x0, y0, w, h] of the image (px) and the camera matrix of its pixels."""
+
+    def __init__(self, uv: np.ndarray, margin: float, width: int, height: int, K: np.ndarray):
+        lo = np.floor(uv.min(0) - margin).astype(int)
+        hi = np.ceil(uv.max(0) + margin).astype(int)
+        self.x0, self.y0 = max(lo[0], 0), max(lo[1], 0)
+        self.w, self.h = min(hi[0], width) - self.x0, min(hi[1], height) - self.y0
+        self.K = K.copy()
+        self.K[0, 2] -= self.x0
+        self.K[1, 2] -= self.y0
+
+
+def _centred(T: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """T [4, 4] of a model whose origin is shifted to ``centre`` [3] (model frame): rotations of the twist then
+    turn the object about its centre."""
+    out = T.copy()
+    out[:3, 3] = T[:3, :3] @ centre + T[:3, 3]
+    return out
+
+
+def _signed_distance(mask: np.ndarray) -> np.ndarray:
+    """[H, W] float32 px: distance to the silhouette's outline, positive outside, negative inside."""
+    m = mask.astype(np.uint8)
+    outside = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return outside - inside + np.where(m > 0, 0.5, -0.5).astype(np.float32)
+
+
+def _sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a float32 [H, W] image at points [..., 2] (x, y px), borders replicated."""
+    p = points.reshape(-1, 1, 2).astype(np.float32)
+    out = cv2.remap(image, p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(points.shape[:-1])
+
+
+def _contour(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """``count`` points [N, 2] (px) evenly spaced along the largest outer contour of ``mask`` and their outward
+    unit normals [N, 2]; None when the mask is empty or too small."""
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    c = max(contours, key=len).reshape(-1, 2).astype(np.float64)
+    if len(c) < 12:
+        return None
+    idx = np.linspace(0, len(c), count, endpoint=False).astype(int)
+    k = max(2, len(c) // 60)  # tangent over a few pixels each side
+    tangent = c[(idx + k) % len(c)] - c[(idx - k) % len(c)]
+    normal = np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-9)
+    points = c[idx]
+    probe = np.round(points + 2 * normal).astype(int)  # flip the normals that point into the silhouette
+    h, w = mask.shape
+    inside = mask[np.clip(probe[:, 1], 0, h - 1), np.clip(probe[:, 0], 0, w - 1)]
+    normal[inside] *= -1
+    return points, normal
+
+
+def _foreground_probability(crop: np.ndarray, mask: np.ndarray, params: RgbRefineParams) -> np.ndarray | None:
+    """[H, W] float32: each pixel's probability of showing the object, from the colour histograms of the
+    silhouette (eroded) and of a band around it; None when either region is empty."""
+    m = mask.astype(np.uint8)
+    e = params.erode_px
+    inner = cv2.erode(m, np.ones((2 * e + 1, 2 * e + 1), np.uint8)) > 0 if e else m > 0
+    b = params.band_px
+    near = cv2.dilate(m, np.ones((5, 5), np.uint8)) > 0  # the 2 px next to the outline belong to neither
+    band = (cv2.dilate(m, np.ones((2 * b + 1, 2 * b + 1), np.uint8)) > 0) & ~near
+    if inner.sum() < 10 or band.sum() < 10:
+        return None
+    q = (crop.astype(np.int32) * params.bins) // 256
+    code = (q[..., 0] * params.bins + q[..., 1]) * params.bins + q[..., 2]
+    n = params.bins ** 3
+    hf = np.bincount(code[inner], minlength=n) + 0.5
+    hb = np.bincount(code[band], minlength=n) + 0.5
+    pf, pb = hf / hf.sum(), hb / hb.sum()
+    return (pf / (pf + pb))[code].astype(np.float32)
+
+
+def _edges(prob: np.ndarray, points: np.ndarray, normals: np.ndarray,
+           half: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Along each line (point [N, 2] + s normal [N, 2], s in -half..half px): the mean offset of the object's
+    edge [N] (px, along the outward normal), its spread [N] (px, standard deviation of the softmax over the
+    offsets of each split's log-likelihood: object inside, background outside) and its contrast [N] (nats: how
+    much better the best split explains the line than the line all object or all background)."""
+    s = np.arange(-half, half + 1.0)
+    samples = points[:, None, :] + s[None, :, None] * normals[:, None, :]
+    p = np.clip(_sample(prob, samples), 1e-3, 1 - 1e-3)
+    log_f, log_b = np.log(p), np.log(1 - p)
+    # split k: samples [0, k) are the object, [k, L) the background; k = 0..L
+    inside = np.concatenate([np.zeros((len(p), 1)), np.cumsum(log_f, axis=1)], axis=1)
+    outside = np.concatenate([np.cumsum(log_b[:, ::-1], axis=1)[:, ::-1], np.zeros((len(p), 1))], axis=1)
+    ll = inside + outside
+    w = np.exp(ll - ll.max(axis=1, keepdims=True))
+    w /= w.sum(axis=1, keepdims=True)
+    offsets = np.concatenate([s - 0.5, [s[-1] + 0.5]])  # split k lies between samples k-1 and k
+    mean = w @ offsets
+    spread = np.sqrt(np.maximum(w @ offsets ** 2 - mean ** 2, 0.0))
+    contrast = ll.max(axis=1) - np.maximum(ll[:, 0], ll[:, -1])
+    return mean, spread, contrast
+
+
+def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+               params: RgbRefineParams | None = None) -> RgbRefinement:
+    """The pose T_cam_obj [4, 4] (metres, OpenCV camera frame) of the object whose mesh is ``vertices`` [V, 3]
+    (metres, model frame) and ``faces`` [F, 3], fitted to an RGB ``image`` [H, W, 3] uint8 seen with K [3, 3]
+    (see the module docstring; pass the mesh through ``decimated`` once per object for speed). The input pose
+    comes back (support 0) when the object does not project into the image in front of the camera."""
+    params = params or RgbRefineParams()
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise PegasusError(f"refine_rgb: the image must be [H, W, 3] uint8, not {image.dtype} {image.shape}")
+    height, width = image.shape[:2]
+    vertices = np.asarray(vertices, np.float64)
+    centre = (vertices.min(0) + vertices.max(0)) / 2
+    local = vertices - centre
+    T = _centred(np.asarray(T_cam_obj, np.float64), centre)
+    support, done = 0.0, 0
+    for half in params.half_length_px:
+        v = local @ T[:3, :3].T + T[:3, 3]
+        if (v[:, 2] <= 1e-3).any():
+            break
+        uv = v[:, :2] / v[:, 2:3] * K.diagonal()[:2] + K[:2, 2]
+        if (uv.max(0) < 0).any() or uv[:, 0].min() >= width or uv[:, 1].min() >= height:
+            break
+        roi = _Roi(uv, half + params.band_px + 4, width, height, K)
+        if roi.w < 8 or roi.h < 8:
+            break
+        crop = image[roi.y0:roi.y0 + roi.h, roi.x0:roi.x0 + roi.w]
+        mask = mesh_silhouette(local, faces, roi.K, T, roi.w, roi.h)
+        contour = _contour(mask, params.lines)
+        prob = _foreground_probability(crop, mask, params)
+        if contour is None or prob is None:
+            break
+        points, normals = contour
+        offset, spread, contrast = _edges(prob, points, normals, half)
+        targets = points + offset[:, None] * normals
+        residual = _sample(_signed_distance(mask), targets)
+        # finite differences: steps that move the outline by about step_px
+        z = T[2, 3]
+        f = K[0, 0]
+        radius_px = max(np.linalg.norm(uv - uv.mean(0), axis=1).max(), 4.0)
+        steps = params.step_px * np.r_[[1.0 / radius_px] * 3, [z / f] * 2, z / radius_px]
+        J = np.empty((len(targets), 6))
+        for i in range(6):
+            delta = np.zeros(6)
+            delta[i] = steps[i]
+            moved = mesh_silhouette(local, faces, roi.K, _twist(T, delta), roi.w, roi.h)
+            J[:, i] = (_sample(_signed_distance(moved), targets) - residual) / steps[i]
+        weight = np.minimum(contrast / params.min_contrast, 1.0) / np.maximum(spread, 0.5) ** 2
+        a = np.abs(residual)
+        weight *= np.where(a > params.huber_px, params.huber_px / np.maximum(a, 1e-9), 1.0)
+        H = J.T @ (J * weight[:, None])
+        g = J.T @ (weight * residual)
+        scale = np.diag(H).copy()  # Levenberg-Marquardt on the diagonal: the twist's parts have unlike units
+        scale[scale <= 0] = 1.0
+        try:
+            delta = -np.linalg.solve(H + params.damping * np.diag(scale), g)
+        except np.linalg.LinAlgError:
+            break
+        T = _twist(T, delta)
+        support = float(np.mean(np.abs(residual) <= params.support_px))
+        done += 1
+    out = T.copy()
+    out[:3, 3] = T[:3, 3] - T[:3, :3] @ centre
+    return RgbRefinement(out, support, done)
