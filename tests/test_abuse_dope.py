@@ -202,6 +202,15 @@ def test_intrinsics_must_describe_a_camera(exported, dataset, tmp_path, capsys):
     assert not (tmp_path / "inf").exists()
 
 
+def test_a_mesh_to_refine_against_must_be_a_mesh(exported, dataset, tmp_path, capsys):
+    image = dataset / "train_pbr" / "000000" / "rgb" / "000000.png"
+    (tmp_path / "notes.ply").write_text("not a mesh")
+    refused(["infer", "--model", exported, "--image", image, "--out", tmp_path / "inf", "--refine-rgb",
+             tmp_path / "notes.ply"], capsys, "notes.ply")
+    refused(["infer", "--model", exported, "--image", image, "--out", tmp_path / "inf", "--refine-rgb",
+             tmp_path / "missing.obj"], capsys, "missing.obj")
+
+
 # ---------------------------------------------------------------- memory
 def huge_png(path: Path, width: int, height: int) -> Path:
     """A valid black 1-bit greyscale PNG of ``width`` x ``height`` px, written without holding its pixels

@@ -101,6 +101,14 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     assert len(doc["instances"]) == len(a)
     np.testing.assert_allclose(doc["instances"][0]["t_m"], a[0].T[:3, 3], atol=1e-6)
     assert cv2.imread(str(tmp_path / "inf" / "000000_poses.png")).shape == (240, 320, 3)
+    model_ply = next((dope_dataset / "models").glob("obj_*.ply"))
+    assert main(["infer", "--model", str(onnx_path), "--image", str(scene / "rgb" / "000000.jpg"),
+                 "--K", str(K[0, 0]), str(K[1, 1]), str(K[0, 2]), str(K[1, 2]), "--out", str(tmp_path / "inf_rgb"),
+                 "--refine-rgb", str(model_ply), "--mesh-scale", "0.001"]) == 0
+    refined = json.loads((tmp_path / "inf_rgb" / "000000_poses.json").read_text())["instances"]
+    assert len(refined) == len(a) and all(0 < i["rgb_refined"]["support"] <= 1 for i in refined)
+    moved = [np.linalg.norm(np.subtract(i["rgb_refined"]["t_m"], i["t_m"])) for i in refined]
+    assert max(moved) < 0.01, moved  # right poses (2 cm or better, above) stay near where they were
 
 
 def test_a_distance_head_places_each_pose_on_its_centroids_ray_at_the_distance_it_reads(dope_dataset, overfit_dope,

@@ -79,6 +79,22 @@ def _read_image(path) -> np.ndarray:
     return read_rgb(path)
 
 
+def _read_mesh(path, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """The triangle mesh at ``path`` (PLY, OBJ, ...) scaled by ``scale`` to metres and decimated for
+    ``refine_rgb``: vertices [V, 3] m and faces [F, 3]; a PegasusError when it cannot be read or has no faces."""
+    import trimesh
+
+    from dope_training.refine_rgb import RgbRefineParams, decimated
+
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except (OSError, ValueError) as exc:
+        raise PegasusError(f"{path}: cannot read the mesh ({exc})") from None
+    if not len(getattr(mesh, "faces", ())):
+        raise PegasusError(f"{path}: not a triangle mesh")
+    return decimated(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces), RgbRefineParams().max_faces)
+
+
 def cmd_infer(args) -> int:
     from dope_training.infer import DopeModel
     from dope_training.overlay import write_poses
@@ -95,8 +111,11 @@ def cmd_infer(args) -> int:
         if depth.shape != image.shape[:2]:
             raise PegasusError(f"{args.depth}: a {depth.shape[1]}x{depth.shape[0]} depth image for a "
                                f"{image.shape[1]}x{image.shape[0]} image")
+    mesh = None if args.refine_rgb is None else _read_mesh(args.refine_rgb, args.mesh_scale)
+    if mesh is not None and depth is not None:
+        raise PegasusError("--refine-rgb and --depth: choose one refinement")
     t0 = time.perf_counter()
-    poses = model.estimate(image, K, min_score=args.min_score, depth_m=depth)
+    poses = model.estimate(image, K, min_score=args.min_score, depth_m=depth, mesh=mesh)
     ms = 1000 * (time.perf_counter() - t0)
     obj = model.object
     png, path = write_poses(args.out, args.image, image, K, poses, model, ms)
@@ -108,6 +127,9 @@ def cmd_infer(args) -> int:
         if r is not None:
             print(f"    depth-refined t = {np.round(r.T[:3, 3], 4).tolist()} m  fitness {r.fitness:.2f}  "
                   f"rmse {r.rmse_m * 1000:.1f} mm  " + ("accepted" if r.accepted else f"rejected: {r.reason}"))
+        if pose.rgb_refinement is not None:
+            g = pose.rgb_refinement
+            print(f"    RGB-refined t = {np.round(g.T[:3, 3], 4).tolist()} m  outline support {g.support:.2f}")
     print(f"overlay: {png}\nposes: {path}")
     return 0
 
@@ -181,6 +203,9 @@ def add_commands(sub) -> None:
     p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees, when no --K")
     p.add_argument("--depth", help="depth image aligned to --image (16-bit png): refine the poses against it")
     p.add_argument("--depth-scale", type=float, default=1.0, help="mm per depth unit (BOP PBR datasets: 0.1)")
+    p.add_argument("--refine-rgb", metavar="MESH", help="the object's mesh (model frame): refine the poses against "
+                   "the image, its silhouette fitted to the image's colour edges")
+    p.add_argument("--mesh-scale", type=float, default=1.0, help="metres per mesh unit (BOP models: 0.001)")
     p.add_argument("--out", default="out/infer")
     p.set_defaults(func=cmd_infer)
     p = sub.choices["eval"]
