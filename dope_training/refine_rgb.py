@@ -23,8 +23,8 @@ Each iteration:
 
 The search half-length shrinks stage by stage (``half_length_px``). Only the outline is used: a rotation that
 leaves the silhouette unchanged (a symmetric object turned about its axis, a face seen edge-on) stays as DOPE
-read it. ``support`` (the share of lines whose edge ended within ``support_px`` of the final outline) says how
-well the image confirms the final pose.
+read it. ``support`` (the share of lines whose edge lay within ``support_px`` of the outline in the last
+iteration, the one the last, smallest step started from) says how well the image confirms the final pose.
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ class RgbRefineParams:
 @dataclass
 class RgbRefinement:
     """T [4, 4] refined T_cam_obj (metres, OpenCV camera frame), support (0..1: share of the contour's lines whose
-    edge lies within ``support_px`` of the refined outline), iterations run."""
+    edge lay within ``support_px`` of the outline in the last iteration), iterations run."""
 
     T: np.ndarray
     support: float
