@@ -36,7 +36,7 @@ import numpy as np
 from tqdm import tqdm
 
 from dope_training.infer import DopeModel
-from dope_training.refine_rgb import RgbRefineParams, decimated
+from dope_training.refine_rgb import decimated
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, models_info, read_model, result_row
 from pegasus_gen.formats.drawing import draw_instance
@@ -212,7 +212,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     mesh = None
     if refine_rgb:
         model_mesh = read_model(root, obj.obj_id)
-        mesh = decimated(model_mesh.vertices, model_mesh.faces, RgbRefineParams().max_faces)
+        mesh = decimated(model_mesh.vertices, model_mesh.faces)
     matches, refined_errors, false_positives, rejected, results, frames = [], [], 0, 0, [], []
     for frame in tqdm(list(bop_frames(root / split, max_images)), desc="eval", unit="img"):
         mine = [i for i in frame.instances if i.obj_id == obj.obj_id]

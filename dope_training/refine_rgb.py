@@ -38,6 +38,8 @@ from scipy.spatial.transform import Rotation
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.render.silhouette import mesh_silhouette
 
+MAX_FACES = 1500  # ``decimated``'s default: triangles enough for the outline of a 60-200 px object
+
 
 @dataclass
 class RgbRefineParams:
@@ -50,10 +52,9 @@ class RgbRefineParams:
     erode_px: int = 2  # pixels eroded from the silhouette before its colours are taken as the object's
     huber_px: float = 3.0  # residuals beyond this many pixels are down-weighted (Huber)
     step_px: float = 2.0  # finite-difference steps move the outline by about this many pixels
-    damping: float = 0.2  # Levenberg damping on the normal equations, relative to their mean diagonal
+    damping: float = 0.2  # Marquardt damping: each pose parameter's curvature (the normal equations' diagonal) x this
     min_contrast: float = 4.0  # lines whose edge explains them better by fewer nats weigh proportionally less
     support_px: float = 2.0  # a line supports the final pose when its edge lies within this many pixels
-    max_faces: int = 1500  # the silhouette's mesh is decimated to at most this many triangles
 
 
 @dataclass
@@ -66,7 +67,7 @@ class RgbRefinement:
     iterations: int
 
 
-def decimated(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+def decimated(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
     """The mesh (vertices [V, 3] m, faces [F, 3]) simplified to at most ``max_faces`` triangles (quadric
     decimation, open3d); unchanged when it has no more."""
     if len(faces) <= max_faces:
@@ -250,6 +251,4 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
         T = _twist(T, delta)
         support = float(np.mean(np.abs(residual) <= params.support_px))
         done += 1
-    out = T.copy()
-    out[:3, 3] = T[:3, 3] - T[:3, :3] @ centre
-    return RgbRefinement(out, support, done)
+    return RgbRefinement(_centred(T, -centre), support, done)

@@ -84,7 +84,7 @@ def _read_mesh(path, scale: float) -> tuple[np.ndarray, np.ndarray]:
     ``refine_rgb``: vertices [V, 3] m and faces [F, 3]; a PegasusError when it cannot be read or has no faces."""
     import trimesh
 
-    from dope_training.refine_rgb import RgbRefineParams, decimated
+    from dope_training.refine_rgb import decimated
 
     try:
         mesh = trimesh.load(path, process=False, force="mesh")
@@ -92,7 +92,7 @@ def _read_mesh(path, scale: float) -> tuple[np.ndarray, np.ndarray]:
         raise PegasusError(f"{path}: cannot read the mesh ({exc})") from None
     if not len(getattr(mesh, "faces", ())):
         raise PegasusError(f"{path}: not a triangle mesh")
-    return decimated(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces), RgbRefineParams().max_faces)
+    return decimated(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces))
 
 
 def cmd_infer(args) -> int:
