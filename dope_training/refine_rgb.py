@@ -15,11 +15,15 @@ Each iteration:
    as two RGB histograms, and from them each pixel's probability of being the object;
 3. along each contour point's normal (``half_length_px`` each side) finds where the object ends: the offset
    whose split into object inside and background outside explains the line's pixels best (a softmax over the
-   offsets' log-likelihoods gives the mean offset and its spread);
+   offsets' log-likelihoods gives the mean offset and its spread), then, within ``edge_window_px`` of it, where
+   the colour changes fastest (sub-pixel: a blurred step's steepest point is the step, whatever the blur, where
+   the colour split leans to whichever side the mixed pixels' colours resemble);
 4. moves the pose so that the rendered outline passes through these edge points: Gauss-Newton on the six pose
    parameters (a twist in the camera frame) with the rendered silhouette's signed distance at the edge points as
    residuals, its derivatives by finite differences of re-rendered silhouettes, each line weighted by the
-   inverse spread of its edge and down-weighted beyond ``huber_px`` (lines where an occluder ends the object).
+   inverse spread of its edge, down-weighted beyond ``huber_px`` while the search is wide and, once it is at
+   most ``tukey_from_px``, given no weight beyond ``tukey_px`` (Tukey's biweight: lines where an occluder ends
+   the object, which would pull the outline in and the distance out, stop counting once the outline is close).
 
 The search half-length shrinks stage by stage (``half_length_px``). Only the outline is used: a rotation that
 leaves the silhouette unchanged (a symmetric object turned about its axis, a face seen edge-on) stays as DOPE
@@ -50,7 +54,10 @@ class RgbRefineParams:
     bins: int = 16  # histogram bins per colour channel
     band_px: int = 16  # width of the band outside the silhouette whose colours are the background's, pixels
     erode_px: int = 2  # pixels eroded from the silhouette before its colours are taken as the object's
-    huber_px: float = 3.0  # residuals beyond this many pixels are down-weighted (Huber)
+    edge_window_px: float = 1.5  # the steepest colour change is sought this far each side of the colour split
+    huber_px: float = 3.0  # while the search is wide, residuals beyond this many pixels are down-weighted (Huber)
+    tukey_from_px: float = 6.0  # from the stage whose search half-length is at most this on, Tukey's biweight:
+    tukey_px: float = 4.0  # residuals beyond this many pixels weigh nothing
     step_px: float = 2.0  # finite-difference steps move the outline by about this many pixels
     damping: float = 0.2  # Marquardt damping: each pose parameter's curvature (the normal equations' diagonal) x this
     min_contrast: float = 4.0  # lines whose edge explains them better by fewer nats weigh proportionally less
@@ -190,6 +197,26 @@ def _edges(prob: np.ndarray, points: np.ndarray, normals: np.ndarray,
     return mean, spread, contrast
 
 
+def _steepest(crop: np.ndarray, points: np.ndarray, normals: np.ndarray, centre: np.ndarray,
+              window: float) -> np.ndarray:
+    """Along each line (point [N, 2] + s normal [N, 2]), the offset s [N] (px) within ``window`` of ``centre``
+    [N] where the colours of ``crop`` [H, W, 3] change fastest (colour difference over 1 px, sampled every 0.25
+    px, its peak refined by a parabola)."""
+    step = 0.25
+    s = centre[:, None] + np.arange(-window - 0.5, window + 0.5 + step / 2, step)[None, :]
+    p = (points[:, None, :] + s[..., None] * normals[:, None, :]).reshape(-1, 1, 2).astype(np.float32)
+    colour = cv2.remap(crop.astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE).reshape(len(points), s.shape[1], 3)
+    k = round(0.5 / step)
+    change = np.linalg.norm(colour[:, 2 * k:] - colour[:, :-2 * k], axis=2)  # at s[:, k:-k]
+    i = np.clip(np.argmax(change, axis=1), 1, change.shape[1] - 2)
+    rows = np.arange(len(points))
+    a, b, c = change[rows, i - 1], change[rows, i], change[rows, i + 1]
+    curvature = a - 2 * b + c
+    frac = np.where(curvature < 0, 0.5 * (a - c) / np.where(curvature < 0, curvature, -1.0), 0.0)
+    return s[rows, i + k] + np.clip(frac, -1.0, 1.0) * step
+
+
 def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                params: RgbRefineParams | None = None) -> RgbRefinement:
     """The pose T_cam_obj [4, 4] (metres, OpenCV camera frame) of the object whose mesh is ``vertices`` [V, 3]
@@ -224,6 +251,7 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
             break
         points, normals = contour
         offset, spread, contrast = _edges(prob, points, normals, half)
+        offset = _steepest(crop, points, normals, offset, params.edge_window_px)
         targets = points + offset[:, None] * normals
         residual = _sample(_signed_distance(mask), targets)
         # finite differences: steps that move the outline by about step_px
@@ -239,7 +267,10 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
             J[:, i] = (_sample(_signed_distance(moved), targets) - residual) / steps[i]
         weight = np.minimum(contrast / params.min_contrast, 1.0) / np.maximum(spread, 0.5) ** 2
         a = np.abs(residual)
-        weight *= np.where(a > params.huber_px, params.huber_px / np.maximum(a, 1e-9), 1.0)
+        if half <= params.tukey_from_px:
+            weight *= np.where(a < params.tukey_px, (1 - (a / params.tukey_px) ** 2) ** 2, 0.0)
+        else:
+            weight *= np.where(a > params.huber_px, params.huber_px / np.maximum(a, 1e-9), 1.0)
         H = J.T @ (J * weight[:, None])
         g = J.T @ (weight * residual)
         scale = np.diag(H).copy()  # Levenberg-Marquardt on the diagonal: the twist's parts have unlike units
