@@ -28,14 +28,14 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
-from dope_training.infer import DopeModel
+from dope_training.infer import DopeModel, rgb_refined
 from dope_training.refine_rgb import decimated
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, models_info, read_model, result_row
@@ -224,9 +224,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         started = time.perf_counter()
         estimates = model.estimate(image, frame.K, min_score=min_score, depth_m=depth, mesh=mesh)
         if refine_rgb:
-            estimates = sorted((replace(e, T=e.rgb_refinement.T, score=e.score * e.rgb_refinement.support)
-                                for e in estimates), key=lambda e: -e.score)
-            estimates = [e for e in estimates if e.score >= min_score]
+            estimates = rgb_refined(estimates, min_score)
         seconds = time.perf_counter() - started
         for e in estimates:
             T = e.refined if refine else e.T

@@ -34,6 +34,7 @@ iteration, the one the last, smallest step started from) says how well the image
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -85,6 +86,20 @@ def decimated(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FACE
                                      o3d.utility.Vector3iVector(np.asarray(faces, np.int32)))
     mesh = mesh.simplify_quadric_decimation(target_number_of_triangles=max_faces)
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int64)
+
+
+def read_mesh(path: str | Path, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The triangle mesh at ``path`` (PLY, OBJ, ...) scaled by ``scale`` to metres and ``decimated``: vertices
+    [V, 3] m and faces [F, 3]; a PegasusError when it cannot be read or has no faces."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except (OSError, ValueError) as exc:
+        raise PegasusError(f"{path}: cannot read the mesh ({exc})") from None
+    if not len(getattr(mesh, "faces", ())):
+        raise PegasusError(f"{path}: not a triangle mesh")
+    return decimated(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces))
 
 
 def _twist(T: np.ndarray, delta: np.ndarray) -> np.ndarray:

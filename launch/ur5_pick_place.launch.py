@@ -6,6 +6,8 @@ pegasus launch launch/ur5_pick_place.launch.py host:=192.168.1.10 model:=MODEL.o
 hand_eye is T_base_cam (camera pose in the robot base frame, 16 numbers row-major, metres) from your
 hand-eye calibration; basket is the basket floor centre in the base frame. Both are YAML lists of floats:
 write every number with a decimal point (1.0, not 1), as launch_ros reads them as List[float].
+Without a depth camera, refine_rgb:=MESH (the object's mesh in its model frame, mesh_scale:=0.001 for a model in
+mm) use_pose:=refined moves the robot to the poses refined against the image (see inference_node).
 """
 
 import typing
@@ -38,7 +40,13 @@ def generate_launch_description():
         DeclareLaunchArgument("speed", default_value="0.1", description="TCP speed, m/s"),
         Node(package="pegasus", executable="camera_node", on_exit=Shutdown(), parameters=[{
             "source": arg("source"), "folder": arg("images"), "rate": 2.0}]),
-        Node(package="pegasus", executable="inference_node", parameters=[{"model": arg("model"), "device": "auto"}]),
+        DeclareLaunchArgument("refine_rgb", default_value="",
+                              description="the object's mesh: refine the poses against the image (empty: off)"),
+        DeclareLaunchArgument("mesh_scale", default_value="1.0", description="metres per mesh unit"),
+        DeclareLaunchArgument("use_pose", default_value="raw", choices=["raw", "refined"]),
+        Node(package="pegasus", executable="inference_node", parameters=[{
+            "model": arg("model"), "device": "auto", "refine_rgb": ParameterValue(arg("refine_rgb"), value_type=str),
+            "mesh_scale": ParameterValue(arg("mesh_scale"), value_type=float), "use_pose": arg("use_pose")}]),
         Node(package="pegasus", executable="robot_node", parameters=[{
             "host": arg("host"), "hand_eye": ParameterValue(arg("hand_eye"), value_type=List[float]),
             "basket": ParameterValue(arg("basket"), value_type=List[float]), "execute": arg("execute"),

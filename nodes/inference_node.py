@@ -1,24 +1,30 @@
-"""inference_node: DOPE poses from camera images, refined with depth when the camera has it.
+"""inference_node: DOPE poses from camera images, refined with depth when the camera has it, or against the RGB
+image itself when it has none.
 
 Subscribes ``image`` (rgb8), ``camera_info`` (K) and, with ``refine``, ``depth`` (32FC1 metres or 16UC1
 mm, aligned to the image; paired with its image by header stamp). Publishes for each image ``object_pose_raw``
 (geometry_msgs/PoseStamped of the best-scoring instance as DOPE + PnP give it, camera frame, metres),
-``object_pose_refined`` (the best-scoring instance whose depth refinement was accepted, refined),
-``object_pose`` (what the robot uses: the raw pose, or with ``use_pose`` = refined the refined one and
-nothing when it is rejected), ``detections`` (vision_msgs/Detection3DArray: every instance with its score
-and model box, refined where accepted) and ``overlay`` (the image with the posed boxes and keypoints).
+``object_pose_refined`` (with ``refine``: the best-scoring instance whose depth refinement was accepted,
+refined; with ``refine_rgb``: the best instance refined against the image, scored by its belief times its
+outline's support, when it reaches ``min_score``), ``object_pose`` (what the robot uses: the raw pose, or with
+``use_pose`` = refined the refined one and nothing when there is none), ``detections``
+(vision_msgs/Detection3DArray: every instance with its score and model box, refined where accepted) and
+``overlay`` (the image with the posed boxes and keypoints).
 Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives on the ``model`` topic, as
-trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``, ``refine`` (bool), ``use_pose``
-(raw | refined), ``max_images`` (> 0: end after that many images). Broadcasts on /tf each instance's pose
-(refined where accepted) as the transform from the image's frame to ``<object>_<k>`` (k by score).
+trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``, ``refine`` (bool: with depth),
+``refine_rgb`` (the object's mesh, PLY/OBJ in its model frame, ``mesh_scale`` metres per unit: refine against
+the image, ``refine_rgb.refine_rgb``; empty: off), ``use_pose`` (raw | refined), ``max_images`` (> 0: end after
+that many images). Broadcasts on /tf each instance's pose (refined where accepted) as the transform from the
+image's frame to ``<object>_<k>`` (k by score).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from dope_training.infer import DopeModel
+from dope_training.infer import DopeModel, rgb_refined
 from dope_training.overlay import draw_poses
+from dope_training.refine_rgb import read_mesh
 from nodes.conversions import image_to_numpy, matrix_to_pose_msg, matrix_to_transform, numpy_to_image
 from nodes.ros import Node, TransformBroadcaster, declare, finish, latched, msgs, run_node
 from pegasus_gen.errors import PegasusError
@@ -27,7 +33,7 @@ PENDING_FRAMES = 4  # images or depth images kept while waiting for their partne
 
 
 PARAMETERS = (("model", ""), ("device", "cpu"), ("min_score", 0.1), ("max_images", 0), ("refine", False),
-              ("use_pose", "raw"))
+              ("refine_rgb", ""), ("mesh_scale", 1.0), ("use_pose", "raw"))
 
 
 class InferenceNode(Node):
@@ -38,8 +44,12 @@ class InferenceNode(Node):
         self.max_images, self.refine, self.use_pose = p["max_images"], p["refine"], p["use_pose"]
         if self.use_pose not in ("raw", "refined"):
             raise PegasusError(f"inference_node: use_pose must be raw or refined, got {self.use_pose!r}")
-        if self.use_pose == "refined" and not self.refine:
-            raise PegasusError("inference_node: use_pose refined needs refine true (and a depth topic)")
+        if self.refine and p["refine_rgb"]:
+            raise PegasusError("inference_node: refine (with depth) and refine_rgb (against the image): choose one")
+        if self.use_pose == "refined" and not (self.refine or p["refine_rgb"]):
+            raise PegasusError("inference_node: use_pose refined needs refine true (and a depth topic) or a "
+                               "refine_rgb mesh")
+        self.mesh = read_mesh(p["refine_rgb"], p["mesh_scale"]) if p["refine_rgb"] else None
         self.model = DopeModel(model, device=self.device) if model else None
         self.create_subscription(msgs.String, "model", self.on_model, latched())
         self.K = None
@@ -84,12 +94,18 @@ class InferenceNode(Node):
             del self.pending[old]
 
     def process(self, msg, depth_m: np.ndarray | None) -> None:
-        """Estimate, refine (with ``depth_m`` [H, W] metres) and publish the poses of one image."""
+        """Estimate, refine (with ``depth_m`` [H, W] metres, or against the image) and publish the poses of one
+        image."""
         if self.K is None or self.model is None:
             return  # no camera_info or no model yet
         image = image_to_numpy(msg)
-        poses = self.model.estimate(image, self.K, min_score=self.min_score, depth_m=depth_m)
+        poses = self.model.estimate(image, self.K, min_score=self.min_score, depth_m=depth_m, mesh=self.mesh)
         self.images += 1
+        best = {"raw": next((p.T for p in poses if p.T is not None), None),
+                "refined": next((p.refined for p in poses if p.refined is not None), None)}
+        if self.mesh is not None:
+            poses = rgb_refined(poses, self.min_score)
+            best["refined"] = poses[0].T if poses else None
         obj = self.model.object
         array = msgs.Detection3DArray(header=msg.header)
         transforms = []
@@ -108,8 +124,6 @@ class InferenceNode(Node):
             self.tf.sendTransform(transforms)
         overlay = draw_poses(image, self.K, poses, obj)
         self.overlay_pub.publish(numpy_to_image(overlay, "rgb8", msg.header))
-        best = {"raw": next((p.T for p in poses if p.T is not None), None),
-                "refined": next((p.refined for p in poses if p.refined is not None), None)}
         stamped = {name: msgs.PoseStamped(header=msg.header, pose=matrix_to_pose_msg(T))
                    for name, T in best.items() if T is not None}
         for name, publisher in (("raw", self.raw_pub), ("refined", self.refined_pub)):

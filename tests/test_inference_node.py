@@ -1,7 +1,7 @@
-"""inference_node with depth refinement on the stand-in layer: the overfit DOPE model's ONNX export, a
-training frame's image and rendered depth (32FC1) with one header stamp; it publishes DOPE's pose, the
-refined one (within millimetres of the truth) and, on object_pose, the one ``use_pose`` picks; without
-depth support nothing reaches object_pose."""
+"""inference_node's refinements on the stand-in layer: the overfit DOPE model's ONNX export, a training frame's
+image and rendered depth (32FC1) with one header stamp; it publishes DOPE's pose, the refined one (within
+millimetres of the truth) and, on object_pose, the one ``use_pose`` picks; without depth support nothing
+reaches object_pose. Without depth, the object's mesh lets it refine against the image."""
 
 import time
 
@@ -15,19 +15,19 @@ from nodes.compat import Parameter
 from nodes.conversions import numpy_to_image, pose_msg_to_matrix
 from nodes.inference_node import InferenceNode
 from nodes.ros import REAL_ROS, Node, msgs
+from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames
 
 pytestmark = pytest.mark.skipif(REAL_ROS, reason="runs the nodes on the stand-in layer")
 TOPICS = ("object_pose", "object_pose_raw", "object_pose_refined")
 
 
-def run_inference(onnx_path, frame, depth_m: np.ndarray, use_pose: str) -> dict:
-    """{topic: first PoseStamped received} after one image + depth + camera_info, within 60 s."""
+def run_inference(onnx_path, frame, depth_m: np.ndarray | None, use_pose: str, **parameters) -> dict:
+    """{topic: first PoseStamped received} after one image (+ depth when given) + camera_info, within 60 s."""
     compat.init()
     try:
-        inference = InferenceNode(parameter_overrides=[Parameter("model", value=str(onnx_path)),
-                                                       Parameter("refine", value=True),
-                                                       Parameter("use_pose", value=use_pose)])
+        parameters = {"model": str(onnx_path), "refine": depth_m is not None, "use_pose": use_pose, **parameters}
+        inference = InferenceNode(parameter_overrides=[Parameter(k, value=v) for k, v in parameters.items()])
         feeder = Node("feeder")
         image_pub = feeder.create_publisher(msgs.Image, "image", 5)
         depth_pub = feeder.create_publisher(msgs.Image, "depth", 5)
@@ -45,7 +45,8 @@ def run_inference(onnx_path, frame, depth_m: np.ndarray, use_pose: str) -> dict:
         info.k = frame.K.ravel().tolist()
         info_pub.publish(info)
         executor.spin_once(timeout_sec=0.1)
-        depth_pub.publish(numpy_to_image(depth_m.astype(np.float32), "32FC1", header))
+        if depth_m is not None:
+            depth_pub.publish(numpy_to_image(depth_m.astype(np.float32), "32FC1", header))
         image_pub.publish(numpy_to_image(image, "rgb8", header))
         t0 = time.monotonic()
         while inference.images < 1 and time.monotonic() - t0 < 60:
@@ -75,3 +76,27 @@ def test_inference_node_publishes_raw_and_refined_poses(dope_dataset, overfit_do
 
     got = run_inference(onnx_path, frame, np.zeros_like(frame.read_depth()), "raw")
     assert set(got) == {"object_pose", "object_pose_raw"}
+
+
+def test_inference_node_refines_against_the_image_with_the_objects_mesh(dope_dataset, overfit_dope, tmp_path):
+    onnx_path, _ = export_checkpoint(overfit_dope / "last.pt", tmp_path / "model.onnx")
+    frame = next(bop_frames(dope_dataset / "train_pbr"))
+    truths = np.array([inst.T[:3, 3] for inst in frame.instances])
+    mesh = str(next((dope_dataset / "models").glob("obj_*.ply")))
+
+    got = run_inference(onnx_path, frame, None, "refined", refine_rgb=mesh, mesh_scale=0.001)
+    assert set(got) == set(TOPICS)
+    raw, refined = (pose_msg_to_matrix(got[t].pose) for t in ("object_pose_raw", "object_pose_refined"))
+    assert np.abs(refined - raw).max() > 1e-6  # moved by the image
+    assert np.linalg.norm(truths - refined[:3, 3], axis=1).min() < 0.02  # on a cup
+    np.testing.assert_allclose(pose_msg_to_matrix(got["object_pose"].pose), refined, atol=1e-9)
+
+    compat.init()
+    try:
+        for overrides, refusal in (({"refine": True, "refine_rgb": mesh}, "choose one"),
+                                   ({"use_pose": "refined"}, "refine_rgb mesh"),
+                                   ({"refine_rgb": str(tmp_path / "none.ply")}, "cannot read the mesh")):
+            with pytest.raises(PegasusError, match=refusal):
+                InferenceNode(parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+    finally:
+        compat.shutdown()

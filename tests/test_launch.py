@@ -142,7 +142,9 @@ SHIPPED = [("generate_train_deploy", []), ("generate_train_deploy", ["scenes:=2"
                                                                        "objects_config:=[{asset: cup, count: 1}]",
                                                                        "train_options:=focal_px=330 schedule=cosine"]),
            ("sim_pick_place", ["model:=m.onnx"]), ("sim_pick_place", ["objects:=a,b", "time_scale:=2", "attempts:=3"]),
-           ("ur5_pick_place", ["host:=10.0.0.2", "model:=m.onnx", f"hand_eye:={EYE}", "speed:=1", "dry_run:=false"])]
+           ("ur5_pick_place", ["host:=10.0.0.2", "model:=m.onnx", f"hand_eye:={EYE}", "speed:=1", "dry_run:=false"]),
+           ("ur5_pick_place", ["host:=10.0.0.2", "model:=m.onnx", f"hand_eye:={EYE}", "refine_rgb:=obj_000001.ply",
+                               "mesh_scale:=0.001", "use_pose:=refined"])]
 
 
 @pytest.mark.parametrize("name,args", SHIPPED)

@@ -79,25 +79,10 @@ def _read_image(path) -> np.ndarray:
     return read_rgb(path)
 
 
-def _read_mesh(path, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """The triangle mesh at ``path`` (PLY, OBJ, ...) scaled by ``scale`` to metres and decimated for
-    ``refine_rgb``: vertices [V, 3] m and faces [F, 3]; a PegasusError when it cannot be read or has no faces."""
-    import trimesh
-
-    from dope_training.refine_rgb import decimated
-
-    try:
-        mesh = trimesh.load(path, process=False, force="mesh")
-    except (OSError, ValueError) as exc:
-        raise PegasusError(f"{path}: cannot read the mesh ({exc})") from None
-    if not len(getattr(mesh, "faces", ())):
-        raise PegasusError(f"{path}: not a triangle mesh")
-    return decimated(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces))
-
-
 def cmd_infer(args) -> int:
     from dope_training.infer import DopeModel
     from dope_training.overlay import write_poses
+    from dope_training.refine_rgb import read_mesh
     from pegasus_gen.formats.bop import read_depth_png
 
     options.output_folder(args.out)
@@ -111,7 +96,7 @@ def cmd_infer(args) -> int:
         if depth.shape != image.shape[:2]:
             raise PegasusError(f"{args.depth}: a {depth.shape[1]}x{depth.shape[0]} depth image for a "
                                f"{image.shape[1]}x{image.shape[0]} image")
-    mesh = None if args.refine_rgb is None else _read_mesh(args.refine_rgb, args.mesh_scale)
+    mesh = None if args.refine_rgb is None else read_mesh(args.refine_rgb, args.mesh_scale)
     if mesh is not None and depth is not None:
         raise PegasusError("--refine-rgb and --depth: choose one refinement")
     t0 = time.perf_counter()
