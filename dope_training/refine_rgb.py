@@ -55,7 +55,7 @@ class RgbRefineParams:
     bins: int = 16  # histogram bins per colour channel
     band_px: int = 16  # width of the band outside the silhouette whose colours are the background's, pixels
     erode_px: int = 2  # pixels eroded from the silhouette before its colours are taken as the object's
-    edge_window_px: float = 1.5  # the steepest colour change is sought this far each side of the colour split
+    edge_window_px: float = 1.5  # the steepest colour change is sought this far each side of the colour split (0: not)
     huber_px: float = 3.0  # while the search is wide, residuals beyond this many pixels are down-weighted (Huber)
     tukey_from_px: float = 6.0  # from the stage whose search half-length is at most this on, Tukey's biweight:
     tukey_px: float = 4.0  # residuals beyond this many pixels weigh nothing
@@ -266,7 +266,8 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
             break
         points, normals = contour
         offset, spread, contrast = _edges(prob, points, normals, half)
-        offset = _steepest(crop, points, normals, offset, params.edge_window_px)
+        if params.edge_window_px > 0:
+            offset = _steepest(crop, points, normals, offset, params.edge_window_px)
         targets = points + offset[:, None] * normals
         residual = _sample(_signed_distance(mask), targets)
         # finite differences: steps that move the outline by about step_px

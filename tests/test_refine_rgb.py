@@ -1,12 +1,14 @@
 """Refinement against the RGB image: a pose a few degrees and per cent off comes back to the silhouette the image
-shows, the right pose stays, and bad input is refused."""
+shows, the right pose stays (a third of the object hidden too), an edge is found to a fraction of a pixel
+whatever the blur, and bad input is refused."""
 
 import numpy as np
 import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
+from scipy.special import erf
 
-from dope_training.refine_rgb import RgbRefineParams, decimated, refine_rgb
+from dope_training.refine_rgb import RgbRefineParams, _steepest, decimated, refine_rgb
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.pose_error import add_error
 from pegasus_gen.render.silhouette import mesh_silhouette
@@ -61,19 +63,49 @@ def test_poses_some_degrees_and_per_cent_off_move_towards_the_silhouette_in_the_
         before.append(add_error(vertices, start, T))
         after.append(add_error(vertices, result.T, T))
         assert result.support > 0.8 and result.iterations == len(RgbRefineParams().half_length_px)
-    # measured: 30-40 mm before, 2-21 mm after (each at most 0.63x, all 0.39x); ~10 cm object: 0.1 d = 10 mm
-    assert all(b > 0.025 and a < 0.75 * b for a, b in zip(after, before)), (before, after)
-    assert np.mean(after) < 0.5 * np.mean(before) and min(after) < 0.005, (before, after)
+    # measured: 30-40 mm before, 3-24 mm after (each at most 0.73x, all 0.43x; over 16 such poses 0.26x on
+    # average, 9 of 16 under 0.25x); ~10 cm object: 0.1 d = 10 mm
+    assert all(b > 0.025 and a < 0.85 * b for a, b in zip(after, before)), (before, after)
+    assert np.mean(after) < 0.6 * np.mean(before) and min(after) < 0.005, (before, after)
 
 
 def test_the_right_pose_stays_and_a_mesh_is_decimated_to_the_cap():
     vertices, faces = _object()
     T = _truth(7)
     result = refine_rgb(_photo(vertices, faces, T, 7), K, T, vertices, faces)
-    assert add_error(vertices, result.T, T) < 0.005  # measured 2.3 mm: it wanders within a pixel of the outline
+    assert add_error(vertices, result.T, T) < 0.005  # measured 2.4 mm: it wanders within a pixel of the outline
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
     v, f = decimated(sphere.vertices, sphere.faces, 300)
     assert len(f) <= 300 and np.allclose(np.linalg.norm(v, axis=1), 0.05, atol=0.004)
+
+
+def test_the_right_pose_stays_with_a_third_of_the_object_hidden():
+    # a background-coloured occluder over the object's right third: its edge runs inside the silhouette
+    vertices, faces = _object()
+    errors = {name: [] for name in ("fit", "colour split alone")}
+    for seed in range(8):
+        T = _truth(seed)
+        image = _photo(vertices, faces, T, seed)
+        ys, xs = np.nonzero(mesh_silhouette(vertices, faces, K, T, 640, 480))
+        hidden = slice(ys.min() - 10, ys.max() + 10), slice(int(np.percentile(xs, 65)), xs.max() + 10)
+        noise = np.random.default_rng(seed).normal(0, 12, image[hidden].shape)
+        image[hidden] = np.clip([70, 130, 95] + noise, 0, 255).astype(np.uint8)
+        for name, params in (("fit", RgbRefineParams()), ("colour split alone", RgbRefineParams(edge_window_px=0))):
+            errors[name].append(add_error(vertices, refine_rgb(image, K, T, vertices, faces, params).T, T))
+    # measured, median over the 8: 1.4 mm (one of 8 wanders off, 52 mm); the colour split alone: 4.8 mm
+    assert np.median(errors["fit"]) < 0.003 < np.median(errors["colour split alone"]), errors
+
+
+def test_an_edge_is_found_to_a_fraction_of_a_pixel_whatever_the_blur():
+    # a colour step at a sub-pixel position, blurred by a Gaussian; the colour split's guess 0.9 px off either way
+    for sigma in (0.6, 1.0, 1.5):
+        for edge in np.linspace(20.0, 21.0, 9):
+            step = 0.5 * (1 + erf((np.arange(48.0) - edge) / (sigma * np.sqrt(2))))[:, None]
+            row = np.array([190.0, 60, 50]) + step * np.array([-130.0, 60, 60])
+            image = np.repeat(row[None], 16, axis=0).astype(np.uint8)
+            points, normals = np.array([[18.0, 8.0], [18.0, 5.0]]), np.array([[1.0, 0.0], [1.0, 0.0]])
+            found = 18 + _steepest(image, points, normals, np.array([edge - 18 + 0.9, edge - 18 - 0.9]), 1.5)
+            assert np.abs(found - edge).max() < 0.35, (sigma, edge, found)  # measured: at most 0.30 px
 
 
 def test_an_object_outside_the_image_comes_back_unchanged_and_a_grey_image_is_refused():
