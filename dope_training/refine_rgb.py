@@ -141,10 +141,11 @@ def _signed_distance(mask: np.ndarray) -> np.ndarray:
 
 
 def _sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a float32 [H, W] image at points [..., 2] (x, y px), borders replicated."""
+    """Bilinear samples [..., C] of a float32 [H, W] or [H, W, C] image at points [..., 2] (x, y px), borders
+    replicated."""
     p = points.reshape(-1, 1, 2).astype(np.float32)
     out = cv2.remap(image, p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(points.shape[:-1])
+    return out.reshape(points.shape[:-1] + image.shape[2:])
 
 
 def _contour(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -219,9 +220,7 @@ def _steepest(crop: np.ndarray, points: np.ndarray, normals: np.ndarray, centre:
     px, its peak refined by a parabola)."""
     step = 0.25
     s = centre[:, None] + np.arange(-window - 0.5, window + 0.5 + step / 2, step)[None, :]
-    p = (points[:, None, :] + s[..., None] * normals[:, None, :]).reshape(-1, 1, 2).astype(np.float32)
-    colour = cv2.remap(crop.astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE).reshape(len(points), s.shape[1], 3)
+    colour = _sample(crop.astype(np.float32), points[:, None, :] + s[..., None] * normals[:, None, :])
     k = round(0.5 / step)
     change = np.linalg.norm(colour[:, 2 * k:] - colour[:, :-2 * k], axis=2)  # at s[:, k:-k]
     i = np.clip(np.argmax(change, axis=1), 1, change.shape[1] - 2)

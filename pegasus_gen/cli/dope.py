@@ -97,8 +97,6 @@ def cmd_infer(args) -> int:
             raise PegasusError(f"{args.depth}: a {depth.shape[1]}x{depth.shape[0]} depth image for a "
                                f"{image.shape[1]}x{image.shape[0]} image")
     mesh = None if args.refine_rgb is None else read_mesh(args.refine_rgb, args.mesh_scale)
-    if mesh is not None and depth is not None:
-        raise PegasusError("--refine-rgb and --depth: choose one refinement")
     t0 = time.perf_counter()
     poses = model.estimate(image, K, min_score=args.min_score, depth_m=depth, mesh=mesh)
     ms = 1000 * (time.perf_counter() - t0)
@@ -186,10 +184,11 @@ def add_commands(sub) -> None:
     p.add_argument("--image", required=True)
     p.add_argument("--K", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="camera intrinsics, px")
     p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees, when no --K")
-    p.add_argument("--depth", help="depth image aligned to --image (16-bit png): refine the poses against it")
+    refine = p.add_mutually_exclusive_group()
+    refine.add_argument("--depth", help="depth image aligned to --image (16-bit png): refine the poses against it")
+    refine.add_argument("--refine-rgb", metavar="MESH", help="the object's mesh (model frame): refine the poses "
+                        "against the image, its silhouette fitted to the image's colour edges")
     p.add_argument("--depth-scale", type=float, default=1.0, help="mm per depth unit (BOP PBR datasets: 0.1)")
-    p.add_argument("--refine-rgb", metavar="MESH", help="the object's mesh (model frame): refine the poses against "
-                   "the image, its silhouette fitted to the image's colour edges")
     p.add_argument("--mesh-scale", type=float, default=1.0, help="metres per mesh unit (BOP models: 0.001)")
     p.add_argument("--out", default="out/infer")
     p.set_defaults(func=cmd_infer)
