@@ -5,8 +5,8 @@ stack's map convention.
 Peaks: a copy of each belief map blurred with a Gaussian of ``blur_cells`` cells serves only to find them: a
 peak is a cell of the blurred map >= its 4 neighbours (on a tie the right/lower cell wins, so a two-cell
 plateau gives one peak) and > ``blur_threshold``; its score is the unblurred belief there, kept when >
-``min_score`` for centroids (an instance's detection score) and > min(``min_score``, ``CORNER_SCORE``) for
-corners (a detection threshold above that must not take a detected instance's corners away). Its sub-cell
+min(``min_score``, ``CORNER_SCORE``) (a detection threshold above that must not take a detected instance's
+corners away, nor its centroid the corners' grouping). Its sub-cell
 position, along rows and along columns apart, is the vertex of the parabola through the logarithms of the
 unblurred beliefs at the peak cell and its two neighbours (``subcell``: a Gaussian's logarithm is a parabola,
 so this is exact for a Gaussian peak of any width, clamped to one cell; values floored at 1e-3), taken to
@@ -30,6 +30,13 @@ unit vector from the corner to its centroid differs from the affinity of kind k 
 first, each peak and each instance's corner at most once. The direction alone cannot tell apart two
 centroids in line with a corner (joining the best-aligned centroid went wrong in 4 % of 300 two-instance
 scenes); the distance does, as upstream's choice of the nearest candidate.
+
+Score: an instance's detection score is the geometric mean of its centroid's belief and the mean belief of its
+eight corners (0 where not found), and instances under ``min_score`` are dropped once grouped. A look-alike in
+real clutter (docs/TRAINING.md run GG) mostly has weaker corners around its centroid than an instance; on the generated
+held-out frames of four LM-O objects the score separates the estimates on an instance from the others better
+than the centroid's belief alone (ROC AUC 0.92-0.98 against 0.86-0.94). The geometric mean keeps a belief's
+scale (a centroid and corners all at 0.6 score 0.6).
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ import numpy as np
 from dope_training.targets import cells_to_pixels
 
 LOG_FLOOR = 1e-3  # beliefs below this count as this in the sub-cell fit
-CORNER_SCORE = 0.1  # corner peaks join an instance above this belief (or min_score, if lower)
+CORNER_SCORE = 0.1  # peaks (corners, and centroids before scoring) count above this belief (or min_score, if lower)
 
 
 @dataclass
@@ -55,8 +62,8 @@ class Detection:
 
     @property
     def score(self) -> float:
-        """The centroid's belief."""
-        return float(self.scores[8])
+        """The detection score: sqrt(centroid belief x mean corner belief), see the module docstring."""
+        return float(np.sqrt(self.scores[8] * self.scores[:8].mean()))
 
 
 def find_peaks(belief: np.ndarray, stride: int = 8, blur_cells: float = 1.0, blur_threshold: float = 0.01,
@@ -98,10 +105,11 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
                    max_angle_error: float = 0.5) -> list[Detection]:
     """Instances in one image's maps: beliefs [9, h, w], affinities [16, h, w] (the network's last stage).
 
-    Returns Detections (keypoints in input pixels of the network's input), highest centroid score first.
+    Returns Detections (keypoints in input pixels of the network's input) scoring above ``min_score``, highest
+    score first.
     """
-    centroids, _, centroid_scores = find_peaks(beliefs[8], stride, blur_cells, blur_threshold, min_score)
-    corner_score = min(min_score, CORNER_SCORE)
+    peak_score = min(min_score, CORNER_SCORE)
+    centroids, _, centroid_scores = find_peaks(beliefs[8], stride, blur_cells, blur_threshold, peak_score)
     order = np.argsort(-centroid_scores, kind="stable")
     centroids, centroid_scores = centroids[order], centroid_scores[order]
     detections = []
@@ -110,7 +118,7 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
         keypoints[8] = centroid
         detections.append(Detection(keypoints, np.r_[np.zeros(8), score]))
     for k in range(8):
-        points, cells, scores = find_peaks(beliefs[k], stride, blur_cells, blur_threshold, corner_score)
+        points, cells, scores = find_peaks(beliefs[k], stride, blur_cells, blur_threshold, peak_score)
         pairs = []  # (distance, peak, instance) of every pair whose directions agree
         for p, (point, (i, j)) in enumerate(zip(points, cells)):
             affinity = affinities[2 * k:2 * k + 2, i, j].astype(np.float64)
@@ -127,4 +135,5 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
                 used.add(p)
                 detections[n].keypoints[k] = points[p]
                 detections[n].scores[k] = scores[p]
-    return detections
+    kept = [d for d in detections if d.score > min_score]
+    return sorted(kept, key=lambda d: -d.score)

@@ -16,7 +16,7 @@ With depth refinement
 (``refine``) the refined poses are matched and scored the same way, a rejected refinement being a miss.
 With refinement against the RGB image (``refine_rgb``: the silhouette of the dataset's model of the object
 fitted to the image's colour edges, ``dope_training.refine_rgb``) the whole report is that of the refined poses,
-each scored by its centroid's belief times the share of its outline the image supports
+each scored by its detection score (``decode``: centroid and corners) times the share of its outline the image supports
 (``RgbRefinement.support``), and ``min_score`` applies to that score. The report's ``estimates`` are the poses
 output for the evaluated images in BOP19's results form (scene_id, im_id, obj_id, score, R row-major, t in mm,
 time: the image's inference seconds): the refined poses the refinement accepted with ``refine``, else the PnP
@@ -279,7 +279,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
 
 
 def score_threshold(report: dict, max_false_positives_per_image: float, keep_found: float = 0.0) -> float:
-    """The lowest detection score (centroid belief) at which the report's estimates would leave at most
+    """The lowest detection score (``decode``) at which the report's estimates would leave at most
     ``max_false_positives_per_image`` false positives per image: counted as every estimate at or above it
     less the matched ones at or above it (each instance keeps its match while its score passes); and, with
     ``keep_found`` > 0, at least the highest score that still keeps that share of the report's found instances

@@ -45,10 +45,11 @@ NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1
 @dataclass
 class ObjectPose:
     """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes) from DOPE + PnP (None
-    when PnP could not solve its keypoints: then kept only because depth refinement found it), the
-    centroid's belief, keypoints [9, 2] in image pixels (NaN where not found), the mean reprojection error
-    (px, NaN without PnP) and, when a depth image was given, the depth refinement (``refine.Refinement``), or
-    when the object's mesh was, the refinement against the RGB image (``refine_rgb.RgbRefinement``)."""
+    when PnP could not solve its keypoints: then kept only because depth refinement found it), its detection
+    score (``decode.Detection.score``), keypoints [9, 2] in image pixels (NaN where not found), the mean
+    reprojection error (px, NaN without PnP) and, when a depth image was given, the depth refinement
+    (``refine.Refinement``), or when the object's mesh was, the refinement against the RGB image
+    (``refine_rgb.RgbRefinement``)."""
 
     T: np.ndarray | None
     score: float
@@ -79,7 +80,7 @@ class ObjectPose:
 
 def rgb_refined(poses: list[ObjectPose], min_score: float = 0.0) -> list[ObjectPose]:
     """The poses that ``DopeModel.estimate`` refined against the RGB image, as poses of their own: T the refined
-    T_cam_obj, scored by the centroid's belief times the share of the outline the image supports
+    T_cam_obj, scored by the detection score times the share of the outline the image supports
     (``RgbRefinement.support``: on generated held-out frames the product separates right estimates from false
     ones better than either), best first, those under ``min_score`` left out."""
     out = [replace(p, T=p.rgb_refinement.T, score=p.score * p.rgb_refinement.support)

@@ -5,8 +5,8 @@ Subscribes ``image`` (rgb8), ``camera_info`` (K) and, with ``refine``, ``depth``
 mm, aligned to the image; paired with its image by header stamp). Publishes for each image ``object_pose_raw``
 (geometry_msgs/PoseStamped of the best-scoring instance as DOPE + PnP give it, camera frame, metres),
 ``object_pose_refined`` (with ``refine``: the best-scoring instance whose depth refinement was accepted,
-refined; with ``refine_rgb``: the best instance refined against the image, scored by its belief times its
-outline's support, when it reaches ``min_score``), ``object_pose`` (what the robot uses: the raw pose, or with
+refined; with ``refine_rgb``: the best instance refined against the image, scored by its detection score times
+its outline's support, when it reaches ``min_score``), ``object_pose`` (what the robot uses: the raw pose, or with
 ``use_pose`` = refined the refined one and nothing when there is none), ``detections``
 (vision_msgs/Detection3DArray: every instance with its score and model box, refined where accepted) and
 ``overlay`` (the image with the posed boxes and keypoints).

@@ -73,17 +73,24 @@ def test_decoding_the_targets_gives_back_the_keypoints_and_their_instances(insta
     assert find_keypoints(np.zeros((9, 25, 25)), np.zeros((16, 25, 25))) == []
 
 
-def test_a_detection_threshold_keeps_the_corners_of_the_instances_it_keeps():
+def test_a_detection_threshold_keeps_the_corners_of_the_instances_it_keeps_and_scores_them_with_the_centroid():
     rng = np.random.default_rng(4)
     Kc = np.array([[250.0, 0, 99.5], [0, 250.0, 99.5], [0, 0, 1]])
     keypoints = project_points(CUBOID, random_pose(rng, (-0.01, 0.01), (0.6, 0.7)), Kc)[None]
     beliefs, affinities = make_targets(keypoints, np.ones((1, 9), bool), 200, 200)
     beliefs[:8] *= 0.3  # weak corners under a confident centroid, as a trained network's often are
     beliefs[8] *= 0.8
-    for threshold in (0.1, 0.5, 0.7):
+    (alone,) = find_keypoints(beliefs, affinities, min_score=0.1)
+    score = np.sqrt(alone.scores[8] * alone.scores[:8].mean())  # the geometric mean of centroid and corners
+    assert alone.score == pytest.approx(score) and 0.3 < score < 0.45
+    for threshold in (0.1, 0.25, score - 0.01):
         (found,) = find_keypoints(beliefs, affinities, min_score=threshold)
         assert np.isfinite(found.keypoints).all() and found.scores[8] > 0.7  # all nine keypoints still there
-    assert find_keypoints(beliefs, affinities, min_score=0.85) == []  # the centroid alone decides
+    assert find_keypoints(beliefs, affinities, min_score=score + 0.01) == []  # the score decides, not the centroid
+    beliefs[:4] = 0.0  # half the corners gone: the same centroid scores lower
+    (half,) = find_keypoints(beliefs, affinities, min_score=0.1)
+    assert half.score == pytest.approx(np.sqrt(alone.scores[8] * alone.scores[4:8].sum() / 8))  # missing count as 0
+    assert np.isnan(half.keypoints[:4]).all() and half.score < score / np.sqrt(1.5)
 
 
 @pytest.mark.parametrize("sigma_px", [4.0, 8.0])

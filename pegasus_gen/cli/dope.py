@@ -177,7 +177,8 @@ def add_commands(sub) -> None:
         p = sub.add_parser(name, help=text)
         p.add_argument("--model", required=True, help="ONNX export (onnxruntime) or training checkpoint .pt (torch)")
         options.add_device(p, default="cpu")
-        p.add_argument("--min-score", type=float, default=0.1, help="lowest centroid belief kept")
+        p.add_argument("--min-score", type=float, default=0.1,
+                       help="lowest detection score kept (geometric mean of the centroid's and corners' beliefs)")
         p.add_argument("--no-distance-head", dest="distance_head", action="store_false",
                        help="place the poses where PnP puts them even when the network has a distance head")
     p = sub.choices["infer"]
