@@ -2,7 +2,7 @@
 dataset's real photos (DOPE alone).
 
 Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 2400] [--epochs 20]
-       [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda]
+       [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] [--refine-rgb]
        [--generate key=value ...] [--train key=value ...] --out OUT
 
 What it reads of DIR, and nothing else: ``models/obj_*.ply`` (mm, vertex colour: the objects, and the others as
@@ -27,13 +27,14 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there and keeping
    ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found there), then on the real split with that score
    (``OUT/eval/obj_ID`` and ``OUT/eval_synthetic/obj_ID``: eval.json, the curve and the gallery of the worst
-   images); and the same again with DOPE's poses refined against the images (``pegasus eval --refine-rgb``: the
-   model's silhouette fitted to the photo's colour edges, scored by belief x outline support; RGB alone still)
-   in ``OUT/eval_rgb`` and ``OUT/eval_synthetic_rgb``.
+   images); with ``--refine-rgb`` the same again with DOPE's poses refined against the images (``pegasus eval
+   --refine-rgb``: the model's silhouette fitted to the photo's colour edges, scored by belief x outline support;
+   RGB alone still; 3-6 more minutes per object on 2 CPU cores) in ``OUT/eval_rgb`` and ``OUT/eval_synthetic_rgb``.
 
-Writes ``OUT/real.json``, prints one line per object, one line ``real + RGB refinement: mean ADD(-S) 0.1d recall
-R, AUC A, false positives per image F over N objects`` and ends with one line: ``real: mean ADD(-S) 0.1d recall
-R, AUC A, false positives per image F over N objects`` (DOPE alone).
+Writes ``OUT/real.json`` (with each step's seconds and the minutes per object: its training and evaluation, and
+its share of the library and the data), prints one line per object, with ``--refine-rgb`` one line ``real + RGB
+refinement: mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects``, and ends with one
+line: ``real: mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects`` (DOPE alone).
 """
 
 from __future__ import annotations
@@ -190,6 +191,8 @@ def main() -> int:
     parser.add_argument("--out", required=True)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variant", choices=("light", "pretrained"), default=VARIANT)
+    parser.add_argument("--refine-rgb", action="store_true",
+                        help="also score the poses refined against the images (pegasus eval --refine-rgb)")
     parser.add_argument("--generate", nargs="*", default=[], help="generate overrides (key=value) of the data")
     parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields (key=value) on the recipe's")
     args = parser.parse_args()
@@ -248,30 +251,36 @@ def main() -> int:
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
         rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
-        for how, refine_rgb in (("", False), ("_rgb", True)):
+        for how, refine_rgb in (("", False), ("_rgb", True))[:1 + args.refine_rgb]:
             where = (out / f"eval_synthetic{how}" / f"obj_{i:06d}", out / f"eval{how}" / f"obj_{i:06d}")
             rows[i][f"synthetic{how}"], rows[i][f"real{how}"] = scored(model, held_out, root, args.split,
                                                                         args.max_images, where, refine_rgb)
         times[f"evaluate obj {i}"] = time.monotonic() - t0
-        print(f"obj {i}: {describe('real', rows[i]['real'])}; {describe('refined', rows[i]['real_rgb'])}; synthetic "
-              f"held-out recall {rows[i]['synthetic']['recall_0_1d']:.3f}, AUC {rows[i]['synthetic']['auc']:.3f}, "
-              f"refined {rows[i]['synthetic_rgb']['recall_0_1d']:.3f}, {rows[i]['synthetic_rgb']['auc']:.3f}",
-              flush=True)
+        shared = (times["library"] + times["generate"]) / len(ids)
+        rows[i]["minutes"] = round((shared + times[f"train obj {i}"] + times[f"evaluate obj {i}"]) / 60, 1)
+        refined = [describe('refined', rows[i]['real_rgb'])] if args.refine_rgb else []
+        synthetic = [f"synthetic held-out recall {rows[i][f'synthetic{how}']['recall_0_1d']:.3f}, AUC "
+                     f"{rows[i][f'synthetic{how}']['auc']:.3f}{' refined' if how else ''}"
+                     for how in ("", "_rgb")[:1 + args.refine_rgb]]
+        print(f"obj {i}: " + "; ".join([describe('real', rows[i]['real']), *refined, *synthetic,
+                                        f"{rows[i]['minutes']:.1f} min"]), flush=True)
 
-    mean, mean_rgb = ({k: float(np.mean([rows[i][key][k] for i in ids]))
-                       for k in ("recall_0_1d", "auc", "false_positives_per_image")} for key in ("real", "real_rgb"))
+    means = {key: {k: float(np.mean([rows[i][key][k] for i in ids]))
+                   for k in ("recall_0_1d", "auc", "false_positives_per_image")}
+             for key in ("real", "real_rgb")[:1 + args.refine_rgb]}
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
            "training_camera": cam, "frames": args.frames, "epochs": args.epochs, "distance_m": list(args.distance),
            "variant": args.variant, "clutter": clutter, "generate": args.generate, "train": args.train,
-           "objects": {str(i): rows[i] for i in ids}, "mean": mean, "mean_rgb_refined": mean_rgb, "seconds": times,
+           "objects": {str(i): rows[i] for i in ids}, "mean": means["real"],
+           "mean_rgb_refined": means.get("real_rgb"), "seconds": times,
            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}"}
     (out / "real.json").write_text(json.dumps(doc, indent=1))
-    print(f"real + RGB refinement: mean ADD(-S) 0.1d recall {mean_rgb['recall_0_1d']:.3f}, AUC "
-          f"{mean_rgb['auc']:.3f}, false positives per image {mean_rgb['false_positives_per_image']:.2f} over "
-          f"{len(ids)} objects")
-    print(f"real: mean ADD(-S) 0.1d recall {mean['recall_0_1d']:.3f}, AUC {mean['auc']:.3f}, false positives per "
-          f"image {mean['false_positives_per_image']:.2f} over {len(ids)} objects")
+    for key, name in (("real_rgb", "real + RGB refinement"), ("real", "real")):
+        if key in means:
+            m = means[key]
+            print(f"{name}: mean ADD(-S) 0.1d recall {m['recall_0_1d']:.3f}, AUC {m['auc']:.3f}, false positives "
+                  f"per image {m['false_positives_per_image']:.2f} over {len(ids)} objects")
     return 0
 
 

@@ -66,9 +66,9 @@ def photo_view(photos: list[np.ndarray], size: int, rng: np.random.Generator) ->
                           borderMode=cv2.BORDER_REFLECT_101)
 
 
-def objects_alpha(masks: list[Path], M: np.ndarray, size: int) -> np.ndarray:
-    """[size, size] float32 0..1: the union of the visible masks (image-sized PNGs, nonzero on the object) warped
-    into the crop by M [2, 3] (image -> crop px), bilinear so that its edges are soft as the crop's are."""
+def masks_union(masks: list[Path]) -> np.ndarray | None:
+    """[H, W] uint8, 1 on the union of the visible masks (image-sized PNGs, nonzero on the object) closed by a pixel
+    (neighbouring objects' masks can leave a seam of antialiased pixels that neither holds); None without masks."""
     union = None
     for path in masks:
         mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
@@ -76,9 +76,15 @@ def objects_alpha(masks: list[Path], M: np.ndarray, size: int) -> np.ndarray:
             raise PegasusError(f"{path}: cannot read this mask")
         union = mask > 0 if union is None else union | (mask > 0)
     if union is None:
+        return None
+    return cv2.morphologyEx(union.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+
+
+def warp_alpha(union: np.ndarray | None, M: np.ndarray, size: int) -> np.ndarray:
+    """[size, size] float32 0..1: ``union`` ([H, W] 0/1, ``masks_union``; None: nothing) warped into the crop by M
+    [2, 3] (image -> crop px), bilinear so that its edges are soft as the crop's are."""
+    if union is None:
         return np.zeros((size, size), np.float32)
-    # closed by a pixel: neighbouring objects' masks can leave a seam of antialiased pixels that neither holds
-    union = cv2.morphologyEx(union.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     return cv2.warpAffine(union.astype(np.float32), M, (size, size), flags=cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
 

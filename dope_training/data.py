@@ -24,8 +24,9 @@ import cv2
 import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
-from dope_training.backgrounds import behind_objects, objects_alpha, photo_view
+from dope_training.backgrounds import behind_objects, masks_union, photo_view, warp_alpha
 from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets, mapped_focal
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, mask_name, model_boxes, object_names
@@ -244,6 +245,9 @@ class DopeDataset(torch.utils.data.Dataset):
     whole: the network learns to read a partly hidden object's pose from what shows. A share ``backgrounds``
     of all crops (of samples with masks) show one of ``photos`` ([H, W, 3] uint8 RGB) behind the labelled objects
     instead of the rendered environment and distractors (``backgrounds.behind_objects``).
+
+    Each item reads its frame's image (and masks) from disk unless ``preload`` decoded them all once (a training
+    run reads each frame once per epoch: decoding was a fifth of a CPU training step's time).
     """
 
     def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
@@ -258,16 +262,43 @@ class DopeDataset(torch.utils.data.Dataset):
         self.backgrounds, self.photos = backgrounds, photos or []
         self.augment = augment or Augment()
         self.epoch = 0
+        self._images: list[np.ndarray] | None = None
+        self._unions: list[np.ndarray | None] | None = None
 
     def __len__(self) -> int:
         return len(self.samples)
+
+    def preload(self, max_bytes: int) -> bool:
+        """Decode every sample's image and (when ``backgrounds`` uses them) its masks' union into memory, if they
+        fit in ``max_bytes`` (judged by the first image's size); returns whether they did. Loader processes forked
+        afterwards share them."""
+        if not self.samples:
+            return False
+        height, width = read_rgb(self.samples[0].image).shape[:2]
+        masks = self.backgrounds > 0 and any(s.masks for s in self.samples)
+        if len(self.samples) * height * width * (4 if masks else 3) > max_bytes:
+            return False
+        frames = [(read_rgb(s.image), masks_union(s.masks) if masks else None)
+                  for s in tqdm(self.samples, desc="decoding frames", unit="frame", mininterval=2.0)]
+        self._images = [image for image, _ in frames]
+        self._unions = [union for _, union in frames] if masks else None
+        return True
+
+    def image(self, index: int) -> np.ndarray:
+        """Sample ``index``'s image [H, W, 3] uint8 RGB (decoded by ``preload`` or read now)."""
+        return self._images[index] if self._images is not None else read_rgb(self.samples[index].image)
+
+    def union(self, index: int) -> np.ndarray | None:
+        """Sample ``index``'s visible masks' union [H, W] uint8 (``backgrounds.masks_union``; None without masks),
+        decoded by ``preload`` or read now."""
+        return self._unions[index] if self._unions is not None else masks_union(self.samples[index].masks)
 
     def item(self, index: int, epoch: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The augmented crop [S, S, 3] uint8 RGB, its keypoints [I, 9, 2] (crop pixels) and the affine
         [2, 3] from image to crop pixels, of ``epoch`` (default ``self.epoch``)."""
         sample = self.samples[index]
         rng = np.random.default_rng([self.seed, self.epoch if epoch is None else epoch, index])
-        image = read_rgb(sample.image)
+        image = self.image(index)
         keypoints = np.stack(sample.keypoints) if sample.keypoints else np.zeros((0, 9, 2))
         chosen = None
         if not len(keypoints) or (self.negatives > 0 and rng.uniform() < self.negatives):
@@ -282,7 +313,7 @@ class DopeDataset(torch.utils.data.Dataset):
                               borderMode=cv2.BORDER_CONSTANT, borderValue=border)
         moved = keypoints @ M[:, :2].T + M[:, 2]
         if self.augment.enabled and sample.masks and self.backgrounds > 0 and rng.uniform() < self.backgrounds:
-            alpha = objects_alpha(sample.masks, M, self.size)
+            alpha = warp_alpha(self.union(index), M, self.size)
             crop = behind_objects(crop, alpha, photo_view(self.photos, self.size, rng))
         if (self.augment.enabled and chosen is not None and len(self.samples) > 1 and self.occluders > 0
                 and rng.uniform() < self.occluders):
@@ -295,8 +326,8 @@ class DopeDataset(torch.utils.data.Dataset):
         """``crop`` [S, S, 3] uint8 with a cut-out of another sample's image than ``index`` pasted over part of the
         instance whose keypoints [9, 2] (crop px) are given."""
         other = rng.integers(len(self.samples) - 1)
-        source = self.samples[other + (other >= index)]
-        image = read_rgb(source.image)
+        other += other >= index
+        source, image = self.samples[other], self.image(other)
         base = input_scale(image.shape[:2], source.K, self.size, self.focal_px)
         M = crop_transform(self.size, base, rng.uniform((0, 0), image.shape[1::-1]), rng, self.augment)
         patch = cv2.warpAffine(image, M, (self.size, self.size), flags=cv2.INTER_LINEAR,

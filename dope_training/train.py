@@ -47,6 +47,7 @@ from dope_training.model import (
     dope_loss,
     load_vgg19_weights,
     memory_estimate,
+    memory_limit,
     model_config,
 )
 from dope_training.train_config import TrainConfig
@@ -310,6 +311,9 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
                                                enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders,
                           backgrounds=cfg.backgrounds, photos=photos)
+    # decoded once, before the loader processes fork (they share the memory): a quarter of the RAM at most
+    if not dataset.preload(memory_limit(torch.device("cpu")) // (4 * world)) and rank == 0:
+        print("note: the training frames do not fit in a quarter of the memory: read from disk for every crop")
     sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
     workers = loader_workers(cfg, device)  # started once: the sampler's keys carry the epoch to them
     loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=sampler, num_workers=workers,

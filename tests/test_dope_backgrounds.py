@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from dope_training.backgrounds import load_photos, objects_alpha, photo_view
+from dope_training.backgrounds import load_photos, masks_union, photo_view, warp_alpha
 from dope_training.data import Augment, DopeDataset, Sample, load_bop
 from pegasus_gen.errors import PegasusError
 
@@ -33,11 +33,37 @@ def test_objects_keep_their_pixels_and_the_rest_shows_the_photo(tmp_path):
         assert np.array_equal(M0, M1) and np.array_equal(moved0, moved1)  # the same crop of the same instance
         for a, b in zip(plain[0][1:], pasted[0][1:]):
             assert torch.equal(a, b)  # every target untouched
-        alpha = objects_alpha(sample.masks, M1, 128)
+        alpha = warp_alpha(masks_union(sample.masks), M1, 128)
         inside, outside = alpha > 0.999, alpha < 0.001
         assert inside.sum() > 500 and outside.sum() > 500
         assert np.array_equal(crop1[inside], crop0[inside])  # the object as rendered
         assert (crop1[outside] == 200).all() and not (crop0 == 200).all(axis=2).any()  # the photo, only there
+
+
+def test_preloaded_frames_give_the_same_items_as_frames_read_from_disk_and_need_the_disk_no_more(tmp_path):
+    rng = np.random.default_rng(3)
+    samples = []
+    for i in range(3):
+        image = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
+        mask = np.zeros((120, 160), np.uint8)
+        cv2.circle(mask, (70 + 5 * i, 60), 25, 255, -1)
+        cv2.imwrite(str(tmp_path / f"im{i}.png"), image)
+        cv2.imwrite(str(tmp_path / f"mask{i}.png"), mask)
+        corners = np.array([[x, y] for x in (50.0, 90.0) for y in (40.0, 80.0)] * 2) + [5 * i, 0]
+        samples.append(Sample(tmp_path / f"im{i}.png", np.eye(3), [np.vstack([corners, [[70.0 + 5 * i, 60.0]]])],
+                              [1], [1.0], [1.0], [tmp_path / f"mask{i}.png"]))
+    photos = [rng.integers(0, 256, (90, 70, 3), dtype=np.uint8)]
+    read, held = (DopeDataset(samples, size=64, focal_px=1.0, negatives=0.3, occluders=0.5, backgrounds=0.5,
+                              photos=photos) for _ in range(2))
+    assert not held.preload(3 * 120 * 160 * 4 - 1)  # one byte short: nothing decoded, still read from disk
+    assert held.preload(3 * 120 * 160 * 4)
+    expected = [[read[(epoch, i)] for i in range(3)] for epoch in range(6)]
+    for path in tmp_path.iterdir():
+        path.unlink()
+    for epoch in range(6):
+        for i in range(3):
+            for a, b in zip(expected[epoch][i], held[(epoch, i)]):
+                assert torch.equal(a, b)
 
 
 def test_bop_samples_carry_the_visible_masks_of_every_labelled_instance(library, tmp_path):
@@ -55,7 +81,7 @@ def test_bop_samples_carry_the_visible_masks_of_every_labelled_instance(library,
     for path in sample.masks:
         assert path.parent == scene / "mask_visib"
         union |= cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0
-    alpha = objects_alpha(sample.masks, np.array([[1.0, 0, 0], [0, 1.0, 0]]), 120)[:, :120]
+    alpha = warp_alpha(masks_union(sample.masks), np.array([[1.0, 0, 0], [0, 1.0, 0]]), 120)[:, :120]
     assert ((alpha > 0.5) == union[:, :120]).mean() > 0.99  # the union, closed by a pixel at most
 
 

@@ -53,7 +53,7 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     out = tmp_path / "bench"
     script = str(ROOT / "benchmarks" / "real.py")
     result = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "16",
-                             "--epochs", "1", "--device", "cpu", "--out", str(out)],
+                             "--epochs", "1", "--device", "cpu", "--refine-rgb", "--out", str(out)],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
     before_last, last = result.stdout.strip().splitlines()[-2:]
@@ -63,6 +63,7 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     doc = json.loads((out / "real.json").read_text())
     figures = doc["objects"]["1"]["real"]
     assert figures["images"] == 3 and figures["instances"] == 3  # every test image scored, one cup in each
+    assert 0 < doc["objects"]["1"]["minutes"] < 15  # its share of the library and data, its training and scoring
     refined = doc["objects"]["1"]["real_rgb"]
     assert refined["images"] == 3 and refined["instances"] == 3  # the same photos, scored after RGB refinement
     # the real set's other model is clutter in the training data (each scene holds it with probability 1/2: seeded)
