@@ -237,6 +237,7 @@ def main() -> int:
                             [*common, f"scenes={HELD_OUT_FRAMES // FRAMES_PER_SCENE}", f"seed={args.seed + 1000}"])
     times["generate"] = time.monotonic() - t0
 
+    hows = ("", "_rgb") if args.refine_rgb else ("",)  # DOPE alone, and refined against the images
     rows = {}
     for i in ids:
         t0 = time.monotonic()
@@ -251,23 +252,23 @@ def main() -> int:
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
         rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
-        for how, refine_rgb in (("", False), ("_rgb", True))[:1 + args.refine_rgb]:
+        for how in hows:
             where = (out / f"eval_synthetic{how}" / f"obj_{i:06d}", out / f"eval{how}" / f"obj_{i:06d}")
             rows[i][f"synthetic{how}"], rows[i][f"real{how}"] = scored(model, held_out, root, args.split,
-                                                                        args.max_images, where, refine_rgb)
+                                                                        args.max_images, where, how == "_rgb")
         times[f"evaluate obj {i}"] = time.monotonic() - t0
         shared = (times["library"] + times["generate"]) / len(ids)
         rows[i]["minutes"] = round((shared + times[f"train obj {i}"] + times[f"evaluate obj {i}"]) / 60, 1)
         refined = [describe('refined', rows[i]['real_rgb'])] if args.refine_rgb else []
         synthetic = [f"synthetic held-out recall {rows[i][f'synthetic{how}']['recall_0_1d']:.3f}, AUC "
                      f"{rows[i][f'synthetic{how}']['auc']:.3f}{' refined' if how else ''}"
-                     for how in ("", "_rgb")[:1 + args.refine_rgb]]
+                     for how in hows]
         print(f"obj {i}: " + "; ".join([describe('real', rows[i]['real']), *refined, *synthetic,
                                         f"{rows[i]['minutes']:.1f} min"]), flush=True)
 
     means = {key: {k: float(np.mean([rows[i][key][k] for i in ids]))
                    for k in ("recall_0_1d", "auc", "false_positives_per_image")}
-             for key in ("real", "real_rgb")[:1 + args.refine_rgb]}
+             for key in (f"real{how}" for how in hows)}
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
            "training_camera": cam, "frames": args.frames, "epochs": args.epochs, "distance_m": list(args.distance),

@@ -275,7 +275,7 @@ class DopeDataset(torch.utils.data.Dataset):
         if not self.samples:
             return False
         height, width = read_rgb(self.samples[0].image).shape[:2]
-        masks = self.backgrounds > 0 and any(s.masks for s in self.samples)
+        masks = self.augment.enabled and self.backgrounds > 0 and any(s.masks for s in self.samples)
         if len(self.samples) * height * width * (4 if masks else 3) > max_bytes:
             return False
         frames = [(read_rgb(s.image), masks_union(s.masks) if masks else None)
