@@ -177,6 +177,7 @@ class Augment:
     hue_deg: float = 6.0
     noise_std: float = 4.0  # grey levels
     blur_px: float = 0.0  # half the crops blurred by a Gaussian of std drawn from 0..this (crop px); 0: none
+    linear_light: bool = False  # blur the light (sRGB decoded, blurred, encoded again) as a lens does, not the code
     enabled: bool = True
 
 
@@ -214,11 +215,27 @@ def occluder_mask(size: int, box: np.ndarray, rng: np.random.Generator) -> np.nd
     return mask.astype(bool)
 
 
+# sRGB's decoding of the 256 codes to linear light 0..1 (IEC 61966-2-1)
+_CODES = np.arange(256) / 255.0
+SRGB_TO_LINEAR = np.where(_CODES <= 0.04045, _CODES / 12.92, ((_CODES + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def blur_light(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """[H, W, 3] uint8 sRGB blurred by a Gaussian of std ``sigma_px`` (px) in linear light, then encoded again: a
+    lens spreads light and the camera encodes afterwards, so a dark object's edge against a bright background
+    moves into the object (blurring the codes themselves keeps every edge in place)."""
+    light = np.clip(cv2.GaussianBlur(SRGB_TO_LINEAR[image], (0, 0), sigmaX=sigma_px), 0.0, 1.0)
+    code = np.where(light <= 0.0031308, 12.92 * light, 1.055 * light ** (1 / 2.4) - 0.055)
+    return np.rint(255.0 * code).astype(np.uint8)
+
+
 def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> np.ndarray:
-    """[H, W, 3] uint8 RGB, for half the images (with ``aug.blur_px`` > 0) blurred as a softer lens would, with
-    random brightness, contrast, saturation, hue and Gaussian noise (the sensor's, after the blur)."""
+    """[H, W, 3] uint8 RGB, for half the images (with ``aug.blur_px`` > 0) blurred as a softer lens would (in
+    linear light with ``aug.linear_light``), with random brightness, contrast, saturation, hue and Gaussian noise
+    (the sensor's, after the blur)."""
     if aug.blur_px > 0 and rng.uniform() < 0.5:
-        image = cv2.GaussianBlur(image, (0, 0), sigmaX=max(rng.uniform(0, aug.blur_px), 1e-3))
+        sigma = max(rng.uniform(0, aug.blur_px), 1e-3)
+        image = blur_light(image, sigma) if aug.linear_light else cv2.GaussianBlur(image, (0, 0), sigmaX=sigma)
     hsv = cv2.cvtColor(image, cv2.COLOR_RGB2HSV).astype(np.float32)
     hsv[..., 0] = (hsv[..., 0] + rng.uniform(-aug.hue_deg, aug.hue_deg) / 2) % 180  # OpenCV hue: 0..180
     hsv[..., 1] *= 1 + rng.uniform(-aug.saturation, aug.saturation)

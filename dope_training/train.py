@@ -308,6 +308,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
 
     dataset = DopeDataset(samples, cfg.size, Augment(brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
                                                saturation=cfg.colour_jitter, blur_px=cfg.blur_px,
+                                               linear_light=cfg.blur_linear_light,
                                                enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders,
                           backgrounds=cfg.backgrounds, photos=photos)

@@ -8,8 +8,19 @@ import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
+from scipy.stats import norm
+from skimage import color
 
-from dope_training.data import Augment, DopeDataset, Sample, canonical_pose, input_scale, load_bop
+from dope_training.data import (
+    SRGB_TO_LINEAR,
+    Augment,
+    DopeDataset,
+    Sample,
+    blur_light,
+    canonical_pose,
+    input_scale,
+    load_bop,
+)
 from dope_training.targets import (
     cell_centres,
     cells_to_pixels,
@@ -122,7 +133,8 @@ def test_augmented_crops_carry_their_keypoints_and_plain_borders(tmp_path):
 
 
 
-def test_blur_softens_about_half_the_crops_and_moves_nothing(tmp_path):
+@pytest.mark.parametrize("linear_light", [False, True])
+def test_blur_softens_about_half_the_crops_and_moves_nothing(tmp_path, linear_light):
     image = np.zeros((240, 320, 3), np.uint8)
     image[:, 160:] = 255  # one sharp vertical edge through the instance
     keypoints = np.array([[140.0, 100.0], [180.0, 100.0], [140.0, 140.0], [180.0, 140.0]] * 2 + [[160.0, 120.0]])
@@ -130,7 +142,8 @@ def test_blur_softens_about_half_the_crops_and_moves_nothing(tmp_path):
     sample = Sample(tmp_path / "im.png", np.eye(3), [keypoints], [1], [1.0])
     plain = dict(brightness=0, contrast=0, saturation=0, hue_deg=0, noise_std=0)  # only the blur changes pixels
     sharp = DopeDataset([sample], size=128, augment=Augment(**plain))
-    soft = DopeDataset([sample], size=128, augment=Augment(**plain, blur_px=2.0))
+    soft = DopeDataset([sample], size=128, augment=Augment(**plain, blur_px=2.0, linear_light=linear_light))
+    light = SRGB_TO_LINEAR if linear_light else np.arange(256.0)  # what the blur keeps: the light, or the codes
 
     def steepest(crop):  # the largest step between neighbouring pixels along x
         return np.abs(np.diff(crop.astype(int), axis=1)).max()
@@ -143,8 +156,33 @@ def test_blur_softens_about_half_the_crops_and_moves_nothing(tmp_path):
         if not np.array_equal(a, b):
             blurred += 1
             assert steepest(b) < steepest(a)
-            assert abs(b.mean() - a.mean()) < 2.0  # blur spreads the light, it adds or removes none
+            assert abs(light[b].mean() - light[a].mean()) < 2e-3 * light[255]  # it spreads, adds or removes none
     assert 10 <= blurred <= 30  # half of 40 draws: 20 +- 3 standard deviations
+
+
+def test_blur_in_linear_light_keeps_the_light_and_moves_a_dark_objects_outline_into_it():
+    grey = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1)[None]  # [1, 256, 3]: every code
+    # sRGB's decoding against scikit-image's (the luminance Y of a grey is its linear light)
+    np.testing.assert_allclose(SRGB_TO_LINEAR, color.rgb2xyz(grey)[0, :, 1], atol=1e-6)
+    assert np.array_equal(blur_light(grey, 1e-3), grey)  # too narrow a blur to mix pixels: every code comes back
+
+    image = np.full((64, 64, 3), 200, np.uint8)
+    image[16:48, 16:48] = 40  # a dark square on a bright ground, its left edge at x = 15.5
+
+    def crossing(row, level):  # where the row first falls below level (px, linear between pixels)
+        i = np.flatnonzero((row[:-1] >= level) & (row[1:] < level))[0]
+        return i + (row[i] - level) / (row[i] - row[i + 1])
+
+    for sigma in (1.0, 1.5, 2.0):
+        light, codes = blur_light(image, sigma), cv2.GaussianBlur(image, (0, 0), sigmaX=sigma)
+        # the light is kept (to its codes' rounding); blurring the codes loses 7-15 times this much of it
+        assert abs(SRGB_TO_LINEAR[light].mean() - SRGB_TO_LINEAR[image].mean()) < 1e-3
+        # the codes' midpoint (120) lies where a share f of the bright ground's light is mixed in: inside the
+        # square by -Phi^-1(f) sigma for a Gaussian; blurring the codes leaves it on the edge
+        f = (SRGB_TO_LINEAR[120] - SRGB_TO_LINEAR[40]) / (SRGB_TO_LINEAR[200] - SRGB_TO_LINEAR[40])
+        inside = crossing(light[32, :, 0].astype(float), 120) - 15.5
+        assert abs(inside + norm.ppf(f) * sigma) < 0.1 and inside > 0.45
+        assert abs(crossing(codes[32, :, 0].astype(float), 120) - 15.5) < 0.1
 
 
 def test_negative_crops_look_away_from_the_instances_and_keep_the_targets_of_any_they_hold(tmp_path):
