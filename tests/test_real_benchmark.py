@@ -53,7 +53,8 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     out = tmp_path / "bench"
     script = str(ROOT / "benchmarks" / "real.py")
     result = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "16",
-                             "--epochs", "1", "--device", "cpu", "--refine-rgb", "--out", str(out)],
+                             "--held-out-frames", "8", "--epochs", "1", "--device", "cpu", "--refine-rgb",
+                             "--out", str(out)],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
     before_last, last = result.stdout.strip().splitlines()[-2:]
