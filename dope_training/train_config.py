@@ -60,9 +60,9 @@ class TrainConfig(BaseModel):
                                              "default: the photographs bundled with scikit-image")
     blur_px: float = Field(0.0, ge=0.0, description="half the crops blurred by a Gaussian whose std is drawn from "
                            "0 to this, network-input px: a real camera's softer optics (0: no blur)")
-    blur_linear_light: bool = Field(False, description="blur in linear light (sRGB decoded, blurred, encoded again) "
-                                    "as a lens does: a dark object's outline moves into it against a bright "
-                                    "background")
+    blur_linear_light: bool = Field(False, description="blur_px's blur in linear light (sRGB decoded, blurred, "
+                                    "encoded again) as a lens does: a dark object's outline moves into it against a "
+                                    "bright background")
     colour_jitter: float = Field(0.25, ge=0.0, lt=1.0, description="brightness, contrast and saturation each "
                                  "scaled by a factor drawn from 1 -/+ this")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
