@@ -20,10 +20,14 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import IMAGE_EXTENSIONS
 from pegasus_gen.io.images import read_rgb
 
-# the photographs (not drawings or test charts) bundled in scikit-image's wheel; stereo_motorcycle gives two
+# the photographs (not drawings or test charts) bundled in scikit-image's wheel (stereo_motorcycle: its left view)
 SKIMAGE_PHOTOS = ("astronaut", "brick", "camera", "cell", "chelsea", "coffee", "coins", "grass", "gravel",
-                  "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket", "text")
+                  "hubble_deep_field", "immunohistochemistry", "moon", "stereo_motorcycle", "page", "retina",
+                  "rocket", "text")
 SCALE = (0.5, 2.0)  # photo pixels per crop pixel, drawn log-uniformly
+# every HELD_OUT_EVERY-th photo (from the first) is kept out of training, for the held-out frames that set the
+# detection score: behind them the network meets real textures it never learnt to ignore, as on a user's photos
+HELD_OUT_EVERY = 4
 
 
 def _rgb(image: np.ndarray) -> np.ndarray:
@@ -46,14 +50,23 @@ def load_photos(folder: str | Path | None = None) -> list[np.ndarray]:
         return [read_rgb(p) for p in paths]
     import skimage.data
 
-    photos = [_rgb(getattr(skimage.data, name)()) for name in SKIMAGE_PHOTOS]
-    left, right, _ = skimage.data.stereo_motorcycle()
-    return [*photos, _rgb(left), _rgb(right)]
+    photos = [getattr(skimage.data, name)() for name in SKIMAGE_PHOTOS]
+    return [_rgb(p[0] if isinstance(p, tuple) else p) for p in photos]  # stereo_motorcycle: (left, right, disparity)
 
 
-def photo_view(photos: list[np.ndarray], size: int, rng: np.random.Generator) -> np.ndarray:
-    """A random view [size, size, 3] uint8 of one of ``photos``: random photo, scale, rotation, centre and
-    mirroring (reflected at the photo's borders)."""
+def split_photos(photos: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """``photos`` split into (training, held out): every ``HELD_OUT_EVERY``-th one from the first is held out, none
+    of fewer than two."""
+    if len(photos) < 2:
+        return list(photos), []
+    return ([p for i, p in enumerate(photos) if i % HELD_OUT_EVERY],
+            [p for i, p in enumerate(photos) if not i % HELD_OUT_EVERY])
+
+
+def photo_view(photos: list[np.ndarray], size: int | tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """A random view [height, width, 3] uint8 (``size``: both, or (height, width)) of one of ``photos``: random
+    photo, scale, rotation, centre and mirroring (reflected at the photo's borders)."""
+    height, width = (size, size) if np.isscalar(size) else size
     photo = photos[rng.integers(len(photos))]
     h, w = photo.shape[:2]
     scale = np.exp(rng.uniform(*np.log(SCALE)))  # photo px per crop px
@@ -61,8 +74,9 @@ def photo_view(photos: list[np.ndarray], size: int, rng: np.random.Generator) ->
     flip = -1.0 if rng.uniform() < 0.5 else 1.0
     R = scale * np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]) @ np.diag([flip, 1.0])
     centre = rng.uniform((0, 0), (w, h))
-    A = np.concatenate([R, (centre - R @ np.full(2, (size - 1) / 2))[:, None]], axis=1)  # crop px -> photo px
-    return cv2.warpAffine(photo, A, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+    middle = np.array([(width - 1) / 2, (height - 1) / 2])
+    A = np.concatenate([R, (centre - R @ middle)[:, None]], axis=1)  # view px -> photo px
+    return cv2.warpAffine(photo, A, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                           borderMode=cv2.BORDER_REFLECT_101)
 
 

@@ -37,7 +37,7 @@ import yaml
 from tqdm import tqdm
 
 from dope_training.backbone import load_pretrained
-from dope_training.backgrounds import load_photos
+from dope_training.backgrounds import load_photos, split_photos
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
 from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
 from dope_training.model import (
@@ -269,7 +269,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
         torch.cuda.set_device(device)
     state = _prepare_output(cfg, resume)
     out = Path(cfg.out)
-    photos = load_photos(cfg.background_photos) if cfg.backgrounds > 0 else None
+    # the held-out share of the photos stays unseen: behind held-out frames it sets the detection score
+    photos = split_photos(load_photos(cfg.background_photos))[0] if cfg.backgrounds > 0 else None
     samples, target = load_training_samples(cfg)
     if photos and not any(s.masks for s in samples) and rank == 0:
         print("note: backgrounds needs BOP visible masks (mask_visib), which these data lack: no crop gets a photo")
