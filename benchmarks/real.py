@@ -23,13 +23,16 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    ``--held-out-frames`` frames of two per scene). A finished dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
-4. Per object: ``pegasus eval`` figures on the synthetic held-out set, which sets the detection score (the
-   lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there and keeping
-   ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found there), then on the real split with that score
-   (``OUT/eval/obj_ID`` and ``OUT/eval_synthetic/obj_ID``: eval.json, the curve and the gallery of the worst
-   images); with ``--refine-rgb`` the same again with DOPE's poses refined against the images (``pegasus eval
-   --refine-rgb``: the model's silhouette fitted to the photo's colour edges, scored by belief x outline support;
-   RGB alone still; 3-6 more minutes per object on 2 CPU cores) in ``OUT/eval_rgb`` and ``OUT/eval_synthetic_rgb``.
+4. Per object: ``pegasus eval`` figures on the synthetic held-out set; on its photo-backed copy
+   (``OUT/held_out_photos``: the same frames with the background photos that training keeps back,
+   ``backgrounds.split_photos``, behind their labelled objects: real textures the network never saw), which sets
+   the detection score (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there and
+   keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found there); then on the real split with that score
+   (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
+   and the gallery of the worst images); with ``--refine-rgb`` the same again with DOPE's poses refined against
+   the images (``pegasus eval --refine-rgb``: the model's silhouette fitted to the photo's colour edges, scored by
+   belief x outline support; RGB alone still; 3-6 more minutes per object on 2 CPU cores) in ``OUT/eval_rgb``,
+   ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``.
 
 Writes ``OUT/real.json`` (with each step's seconds and the minutes per object: its training and evaluation, and
 its share of the library and the data), prints one line per object, with ``--refine-rgb`` one line ``real + RGB
@@ -52,6 +55,7 @@ import cv2
 import numpy as np
 import torch
 
+from dope_training.backgrounds import load_photos, photo_backed, split_photos
 from dope_training.checkpoint import load_checkpoint
 from dope_training.evaluate import describe_found, evaluate, score_threshold, write_eval_report
 from dope_training.infer import DopeModel
@@ -159,17 +163,18 @@ def figures(report: dict) -> dict:
             "min_score": report["min_score"], "found_poses": report["found_poses"]}
 
 
-def scored(model: DopeModel, held_out: Path, root: Path, split: str, max_images: int | None,
-           out: tuple[Path, Path], refine_rgb: bool) -> tuple[dict, dict]:
-    """Figures (``figures``) on the synthetic held-out set and on the real split, whose detection score is the
-    one the held-out set calibrates (``score_threshold``); the reports written to ``out`` (held-out, real folders:
-    ``write_eval_report``). With ``refine_rgb`` of the poses refined against the images."""
-    synthetic = evaluate(model, held_out, "train_pbr", refine_rgb=refine_rgb)
-    write_eval_report(synthetic, out[0])
-    min_score = score_threshold(synthetic, HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND)
-    report = evaluate(model, root, split, max_images=max_images, min_score=min_score, refine_rgb=refine_rgb)
-    write_eval_report(report, out[1])
-    return figures(synthetic), figures(report)
+def scored(model: DopeModel, held_out: tuple[Path, Path], root: Path, split: str, max_images: int | None,
+           out: tuple[Path, Path, Path], refine_rgb: bool) -> tuple[dict, dict, dict]:
+    """Figures (``figures``) on the synthetic held-out set, on its photo-backed copy and on the real split, whose
+    detection score is the one the photo-backed copy calibrates (``score_threshold``); the reports written to
+    ``out`` (held-out, photo-backed, real folders: ``write_eval_report``). With ``refine_rgb`` of the poses refined
+    against the images."""
+    reports = [evaluate(model, where, "train_pbr", refine_rgb=refine_rgb) for where in held_out]
+    min_score = score_threshold(reports[1], HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND)
+    reports.append(evaluate(model, root, split, max_images=max_images, min_score=min_score, refine_rgb=refine_rgb))
+    for report, where in zip(reports, out):
+        write_eval_report(report, where)
+    return tuple(figures(r) for r in reports)
 
 
 def describe(name: str, figures: dict) -> str:
@@ -209,6 +214,7 @@ def main() -> int:
             or not 0 < args.distance[0] < args.distance[1] < 20):
         raise PegasusError(f"--frames and --held-out-frames >= {FRAMES_PER_SCENE}, --epochs >= 1 and 0 < near < far "
                            "<= 20 m expected")
+    options = parse_options(args.train)
     camera = real_camera(root, args.split)
     models_info = read_json(root / "models" / "models_info.json")
     infos = object_infos(root, models_info, ids)
@@ -241,6 +247,12 @@ def main() -> int:
     data = make_dataset(out / "data", [*common, f"scenes={args.frames // FRAMES_PER_SCENE}", f"seed={args.seed}"])
     held_out = make_dataset(out / "held_out",
                             [*common, f"scenes={args.held_out_frames // FRAMES_PER_SCENE}", f"seed={args.seed + 1000}"])
+    backed = out / "held_out_photos"  # behind its objects the photos that training keeps back (split_photos)
+    if not backed.is_dir():
+        photos = split_photos(load_photos(options.get("background_photos")))[1]
+        if not photos:
+            raise PegasusError("the background photos are too few to hold one back for the held-out frames")
+        photo_backed(held_out, "train_pbr", backed, photos, seed=args.seed)
     times["generate"] = time.monotonic() - t0
 
     hows = ("", "_rgb") if args.refine_rgb else ("",)  # DOPE alone, and refined against the images
@@ -251,7 +263,7 @@ def main() -> int:
         started = (run / "last.pt").is_file()
         if not started or load_checkpoint(run / "last.pt")["epoch"] < args.epochs:  # new, or cut short: resumed
             fields = {**train_fields(focal[i], args.epochs), "variant": args.variant, "seed": args.seed,
-                      **parse_options(args.train)}  # --train seed=N: another training draw on the same data
+                      **options}  # --train seed=N: another training draw on the same data
             train(TrainConfig(data=[str(data)], object=str(i), out=str(run), device=args.device, **fields),
                   resume=started)
         times[f"train obj {i}"] = time.monotonic() - t0
@@ -259,9 +271,9 @@ def main() -> int:
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
         rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
         for how in hows:
-            where = (out / f"eval_synthetic{how}" / f"obj_{i:06d}", out / f"eval{how}" / f"obj_{i:06d}")
-            rows[i][f"synthetic{how}"], rows[i][f"real{how}"] = scored(model, held_out, root, args.split,
-                                                                        args.max_images, where, how == "_rgb")
+            where = tuple(out / f"eval{kind}{how}" / f"obj_{i:06d}" for kind in ("_synthetic", "_photo_backed", ""))
+            rows[i][f"synthetic{how}"], rows[i][f"photo_backed{how}"], rows[i][f"real{how}"] = scored(
+                model, (held_out, backed), root, args.split, args.max_images, where, how == "_rgb")
         times[f"evaluate obj {i}"] = time.monotonic() - t0
         shared = (times["library"] + times["generate"]) / len(ids)
         rows[i]["minutes"] = round((shared + times[f"train obj {i}"] + times[f"evaluate obj {i}"]) / 60, 1)

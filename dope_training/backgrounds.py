@@ -11,14 +11,15 @@ the crop was and so soft at their edges, keep the rendered pixels in front.
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.formats.bop import IMAGE_EXTENSIONS
-from pegasus_gen.io.images import read_rgb
+from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, mask_name
+from pegasus_gen.io.images import read_rgb, write_image
 
 # the photographs (not drawings or test charts) bundled in scikit-image's wheel (stereo_motorcycle: its left view)
 SKIMAGE_PHOTOS = ("astronaut", "brick", "camera", "cell", "chelsea", "coffee", "coins", "grass", "gravel",
@@ -108,3 +109,43 @@ def behind_objects(crop: np.ndarray, alpha: np.ndarray, photo: np.ndarray) -> np
     blended where it is fractional."""
     a = alpha[:, :, None]
     return np.clip(a * crop + (1.0 - a) * photo + 0.5, 0, 255).astype(np.uint8)
+
+
+def photo_backed(root: str | Path, split: str, out: str | Path, photos: list[np.ndarray], seed: int = 0) -> Path:
+    """A copy in ``out`` of BOP dataset ``root``'s ``split`` (its scenes' JSON files, ``camera.json`` and the models)
+    whose every image shows a random view of one of ``photos`` (``photo_view``, a frame's size) behind its labelled
+    objects (the union of their BOP visible masks) instead of the rendered environment and distractors; the same
+    image names and formats, drawn with ``seed``. It appears whole or not at all (written beside ``out``, then
+    renamed); an existing ``out`` is a PegasusError, as a frame without visible masks is. Returns ``out``."""
+    root, out = Path(root), Path(out)
+    if out.exists():
+        raise PegasusError(f"{out} exists: choose a new folder for the photo-backed copy")
+    if not photos:
+        raise PegasusError("photo_backed needs at least one photo")
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)  # a copy cut short earlier: never a dataset on its own
+    try:
+        rng = np.random.default_rng(seed)
+        for frame in bop_frames(root / split):
+            masks = [frame.scene / "mask_visib" / mask_name(frame.im_id, i.index) for i in frame.instances]
+            union = masks_union([m for m in masks if m.is_file()])
+            if union is None:
+                raise PegasusError(f"{frame.scene}: image {frame.im_id} has no visible masks (mask_visib) to keep")
+            image = read_rgb(frame.image)
+            view = photo_view(photos, image.shape[:2], rng)
+            scene = partial / split / frame.scene.name
+            (scene / "rgb").mkdir(parents=True, exist_ok=True)
+            write_image(scene / "rgb" / frame.image.name, behind_objects(image, union.astype(np.float32), view))
+            for name in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json"):
+                if (frame.scene / name).is_file() and not (scene / name).is_file():
+                    shutil.copy2(frame.scene / name, scene / name)
+        for name in ("models", "models_eval"):
+            if (root / name).is_dir():
+                shutil.copytree(root / name, partial / name)
+        if (root / "camera.json").is_file():
+            shutil.copy2(root / "camera.json", partial / "camera.json")
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    partial.rename(out)
+    return out

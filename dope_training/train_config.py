@@ -57,7 +57,8 @@ class TrainConfig(BaseModel):
                                "labelled objects, by BOP's visible masks) is a random view of a real photograph: "
                                "real-world textures where nothing is to be found")
     background_photos: Optional[str] = Field(None, description="folder of photos (PNG/JPEG) for backgrounds; "
-                                             "default: the photographs bundled with scikit-image")
+                                             "default: the photographs bundled with scikit-image; every fourth "
+                                             "is kept back for held-out frames (backgrounds.split_photos)")
     blur_px: float = Field(0.0, ge=0.0, description="half the crops blurred by a Gaussian whose std is drawn from "
                            "0 to this, network-input px: a real camera's softer optics (0: no blur)")
     blur_linear_light: bool = Field(False, description="blur_px's blur in linear light (sRGB decoded, blurred, "

@@ -1,12 +1,15 @@
 """Photo backgrounds behind the objects in DOPE's training crops: the objects' pixels kept, everything else from a
-photo, the crop's geometry and targets unchanged; the photos load offline, from a folder or scikit-image."""
+photo, the crop's geometry and targets unchanged; the photos load offline, from a folder or scikit-image; a share
+of them is held out of training, and a BOP dataset's copy shows them behind its objects."""
+
+import json
 
 import cv2
 import numpy as np
 import pytest
 import torch
 
-from dope_training.backgrounds import load_photos, masks_union, photo_view, warp_alpha
+from dope_training.backgrounds import load_photos, masks_union, photo_backed, photo_view, split_photos, warp_alpha
 from dope_training.data import Augment, DopeDataset, Sample, load_bop
 from pegasus_gen.errors import PegasusError
 
@@ -109,3 +112,76 @@ def test_photo_views_vary_in_place_scale_and_turn():
     assert len({v.tobytes() for v in views}) == 20
     with pytest.raises(PegasusError, match="needs background photos"):
         DopeDataset([], size=64, backgrounds=0.5)
+
+
+def test_every_fourth_photo_from_the_first_is_held_out_of_training():
+    photos = [np.full((4, 4, 3), i, np.uint8) for i in range(10)]
+    training, held_out = split_photos(photos)
+    assert [int(p[0, 0, 0]) for p in held_out] == [0, 4, 8]
+    assert [int(p[0, 0, 0]) for p in training] == [1, 2, 3, 5, 6, 7, 9]
+    training, held_out = split_photos(photos[:1])
+    assert len(training) == 1 and held_out == []  # one photo is not split
+    training, held_out = split_photos(load_photos())
+    assert len(held_out) >= 4 and len(training) >= 3 * len(held_out) - 3
+    assert not {p.tobytes() for p in training} & {p.tobytes() for p in held_out}
+
+
+def test_a_photo_view_takes_the_height_and_width_asked_for():
+    photo = np.random.default_rng(1).integers(0, 256, (200, 300, 3), dtype=np.uint8)
+    view = photo_view([photo], (48, 80), np.random.default_rng(0))
+    assert view.shape == (48, 80, 3) and view.dtype == np.uint8 and view.std() > 20
+
+
+def _bop_scene(root, images):
+    """A BOP dataset at ``root``: one scene of ``images``, (rgb [H, W, 3] uint8, masks: list of [H, W] 0/1) each."""
+    scene = root / "train_pbr" / "000000"
+    (scene / "rgb").mkdir(parents=True)
+    (scene / "mask_visib").mkdir()
+    gt, cams, info = {}, {}, {}
+    for im_id, (rgb, masks) in enumerate(images):
+        cv2.imwrite(str(scene / "rgb" / f"{im_id:06d}.png"), rgb[:, :, ::-1])
+        for n, mask in enumerate(masks):
+            cv2.imwrite(str(scene / "mask_visib" / f"{im_id:06d}_{n:06d}.png"), mask * 255)
+        gt[str(im_id)] = [{"obj_id": 1, "cam_R_m2c": np.eye(3).ravel().tolist(), "cam_t_m2c": [0, 0, 500]}] * len(masks)
+        cams[str(im_id)] = {"cam_K": [500, 0, 40, 0, 500, 30, 0, 0, 1], "depth_scale": 1.0}
+        info[str(im_id)] = [{"visib_fract": 1.0}] * len(masks)
+    for name, doc in (("scene_gt", gt), ("scene_camera", cams), ("scene_gt_info", info)):
+        (scene / f"{name}.json").write_text(json.dumps(doc))
+    (root / "models").mkdir()
+    (root / "models" / "models_info.json").write_text(json.dumps({"1": {"diameter": 50.0}}))
+    (root / "camera.json").write_text(json.dumps({"fx": 500}))
+    return scene
+
+
+def test_a_photo_backed_copy_keeps_the_labelled_objects_and_shows_the_photo_everywhere_else(tmp_path):
+    rng = np.random.default_rng(2)
+    images = []
+    for i in range(3):
+        rgb = rng.integers(0, 100, (60, 80, 3), dtype=np.uint8)
+        masks = [np.zeros((60, 80), np.uint8) for _ in range(2)]
+        cv2.circle(masks[0], (20 + 5 * i, 30), 9, 1, -1)
+        cv2.circle(masks[1], (60, 25 + 5 * i), 7, 1, -1)
+        images.append((rgb, masks))
+    scene = _bop_scene(tmp_path / "ds", images)
+    out = photo_backed(tmp_path / "ds", "train_pbr", tmp_path / "backed", [np.full((40, 50, 3), 200, np.uint8)])
+    copy = out / "train_pbr" / "000000"
+    for im_id, (rgb, masks) in enumerate(images):
+        backed = cv2.imread(str(copy / "rgb" / f"{im_id:06d}.png"))[:, :, ::-1]
+        objects = (masks[0] | masks[1]) > 0
+        assert np.array_equal(backed[objects], rgb[objects])  # the labelled objects as they were
+        assert (backed[~objects] == 200).all()  # the photo everywhere else
+    for name in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json"):
+        assert (copy / name).read_bytes() == (scene / name).read_bytes()
+    assert (out / "models" / "models_info.json").is_file() and (out / "camera.json").is_file()
+    with pytest.raises(PegasusError, match="exists"):
+        photo_backed(tmp_path / "ds", "train_pbr", out, [np.zeros((8, 8, 3), np.uint8)])
+
+
+def test_a_photo_backed_copy_that_fails_leaves_nothing(tmp_path):
+    blank = np.zeros((60, 80), np.uint8)
+    ring = blank.copy()
+    cv2.circle(ring, (40, 30), 9, 1, -1)
+    _bop_scene(tmp_path / "ds", [(np.zeros((60, 80, 3), np.uint8), [ring]), (np.zeros((60, 80, 3), np.uint8), [])])
+    with pytest.raises(PegasusError, match="no visible masks"):
+        photo_backed(tmp_path / "ds", "train_pbr", tmp_path / "backed", [np.zeros((8, 8, 3), np.uint8)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]  # neither the copy nor its partial folder
