@@ -7,6 +7,10 @@ default, the photographs that ship inside scikit-image's wheel (``skimage.data``
 a motorcycle in a workshop, microscopy, gravel, brick...; nothing is downloaded). Each use takes a random photo,
 scale (0.5-2x), rotation and place, mirrored half of the time, warped to the crop; the objects' masks, warped as
 the crop was and so soft at their edges, keep the rendered pixels in front.
+
+Every fourth photo is kept out of training (``split_photos``): ``photo_backed`` shows those behind the objects of
+held-out frames, where the network meets real textures it never learnt to ignore, as it will on a user's photos
+(``benchmarks/real.py`` sets the detection score there).
 """
 
 from __future__ import annotations
