@@ -23,11 +23,11 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    ``--held-out-frames`` frames of two per scene). A finished dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
-4. Per object: ``pegasus eval`` figures on the synthetic held-out set; on its photo-backed copy
+4. Per object: ``pegasus eval`` figures on the synthetic held-out set and on its photo-backed copy
    (``OUT/held_out_photos``: the same frames with the background photos that training keeps back,
-   ``backgrounds.split_photos``, behind their labelled objects: real textures the network never saw), which sets
-   the detection score (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image there and
-   keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found there); then on the real split with that score
+   ``backgrounds.split_photos``, behind their labelled objects: real textures the network never saw), which set
+   the detection score (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image and
+   keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split with it
    (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
    and the gallery of the worst images); with ``--refine-rgb`` the same again with DOPE's poses refined against
    the images (``pegasus eval --refine-rgb``: the model's silhouette fitted to the photo's colour edges, scored by
@@ -166,11 +166,12 @@ def figures(report: dict) -> dict:
 def scored(model: DopeModel, held_out: tuple[Path, Path], root: Path, split: str, max_images: int | None,
            out: tuple[Path, Path, Path], refine_rgb: bool) -> tuple[dict, dict, dict]:
     """Figures (``figures``) on the synthetic held-out set, on its photo-backed copy and on the real split, whose
-    detection score is the one the photo-backed copy calibrates (``score_threshold``); the reports written to
-    ``out`` (held-out, photo-backed, real folders: ``write_eval_report``). With ``refine_rgb`` of the poses refined
-    against the images."""
+    detection score is the higher of the two the held-out sets calibrate (``score_threshold``: each holds
+    negatives the other lacks, the rendered distractors and unseen photos); the reports written to ``out``
+    (held-out, photo-backed, real folders: ``write_eval_report``). With ``refine_rgb`` of the poses refined against
+    the images."""
     reports = [evaluate(model, where, "train_pbr", refine_rgb=refine_rgb) for where in held_out]
-    min_score = score_threshold(reports[1], HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND)
+    min_score = max(score_threshold(r, HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND) for r in reports)
     reports.append(evaluate(model, root, split, max_images=max_images, min_score=min_score, refine_rgb=refine_rgb))
     for report, where in zip(reports, out):
         write_eval_report(report, where)
