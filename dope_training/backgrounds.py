@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, mask_name
+from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames
 from pegasus_gen.io.images import read_rgb, write_image
 
 # the photographs (not drawings or test charts) bundled in scikit-image's wheel (stereo_motorcycle: its left view)
@@ -131,8 +131,7 @@ def photo_backed(root: str | Path, split: str, out: str | Path, photos: list[np.
     try:
         rng = np.random.default_rng(seed)
         for frame in bop_frames(root / split):
-            masks = [frame.scene / "mask_visib" / mask_name(frame.im_id, i.index) for i in frame.instances]
-            union = masks_union([m for m in masks if m.is_file()])
+            union = masks_union(frame.visible_masks())
             if union is None:
                 raise PegasusError(f"{frame.scene}: image {frame.im_id} has no visible masks (mask_visib) to keep")
             image = read_rgb(frame.image)

@@ -29,7 +29,7 @@ from tqdm import tqdm
 from dope_training.backgrounds import behind_objects, masks_union, photo_view, warp_alpha
 from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets, mapped_focal
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, mask_name, model_boxes, object_names
+from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 from pegasus_gen.io.files import read_json
 from pegasus_gen.io.images import read_rgb
@@ -108,11 +108,8 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
     for frame in bop_frames(split_dir):
         where = f"{frame.scene}: image {frame.im_id}"
         check_K(frame.K, f"{where} (scene_camera.json)")
-        sample = Sample(frame.image, frame.K)
+        sample = Sample(frame.image, frame.K, masks=frame.visible_masks())
         for inst in frame.instances:
-            mask = frame.scene / "mask_visib" / mask_name(frame.im_id, inst.index)
-            if mask.is_file():
-                sample.masks.append(mask)
             visib = 1.0 if inst.visib_fract is None else inst.visib_fract
             if inst.obj_id in wanted and visib >= min_visibility:
                 T = inst.T if symmetry_axis is None else canonical_pose(inst.T, symmetry_axis)

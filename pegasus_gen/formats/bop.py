@@ -268,6 +268,11 @@ class BopFrame:
     depth: Path | None = None
     depth_scale: float = 1.0
 
+    def visible_masks(self) -> list[Path]:
+        """The visible masks (``mask_visib``) of its instances that are on disk, in instance order."""
+        masks = (self.scene / "mask_visib" / mask_name(self.im_id, inst.index) for inst in self.instances)
+        return [m for m in masks if m.is_file()]
+
     def read_depth(self) -> np.ndarray:
         """The depth image [H, W] in metres (0 where there is none)."""
         if self.depth is None:
