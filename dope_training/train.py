@@ -308,7 +308,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
         if world > 1 else model
 
     dataset = DopeDataset(samples, cfg.size, Augment(brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
-                                               saturation=cfg.colour_jitter, blur_px=cfg.blur_px,
+                                               saturation=cfg.colour_jitter, hue_deg=cfg.hue_deg,
+                                               blur_px=cfg.blur_px,
                                                linear_light=cfg.blur_linear_light,
                                                enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders,

@@ -66,6 +66,9 @@ class TrainConfig(BaseModel):
                                     "bright background")
     colour_jitter: float = Field(0.25, ge=0.0, lt=1.0, description="brightness, contrast and saturation each "
                                  "scaled by a factor drawn from 1 -/+ this")
+    hue_deg: float = Field(6.0, ge=0.0, le=180.0, description="every crop's hue turned by an angle drawn from -/+ "
+                           "this (degrees): a scan's colours come from another camera under other light than the "
+                           "photos the network will see")
     augment: bool = Field(True, description="random crop, scale, rotation and colour augmentation (without it: "
                                             "nominal-scale crops around the instances only)")
     device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto: CUDA when torch sees a GPU")
