@@ -107,6 +107,13 @@ def load_training_samples(cfg: TrainConfig):
     return samples, target
 
 
+def crop_augment(cfg: TrainConfig) -> Augment:
+    """The training crops' augmentation ``cfg`` asks for (colour jitter, hue turn, blur; all of it off without
+    ``cfg.augment``)."""
+    return Augment(brightness=cfg.colour_jitter, contrast=cfg.colour_jitter, saturation=cfg.colour_jitter,
+                   hue_deg=cfg.hue_deg, blur_px=cfg.blur_px, linear_light=cfg.blur_linear_light, enabled=cfg.augment)
+
+
 def learning_rate(cfg: TrainConfig, step: int, total_steps: int) -> float:
     """The learning rate of optimisation step ``step`` (0-based) of ``total_steps``: ``cfg.lr``, or with the
     cosine schedule lr * (0.01 + 0.99 * (1 + cos(pi * step / total_steps)) / 2)."""
@@ -307,11 +314,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
         if world > 1 else model
 
-    dataset = DopeDataset(samples, cfg.size, Augment(brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
-                                               saturation=cfg.colour_jitter, hue_deg=cfg.hue_deg,
-                                               blur_px=cfg.blur_px,
-                                               linear_light=cfg.blur_linear_light,
-                                               enabled=cfg.augment), seed=cfg.seed, focal_px=cfg.focal_px,
+    dataset = DopeDataset(samples, cfg.size, crop_augment(cfg), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders,
                           backgrounds=cfg.backgrounds, photos=photos)
     # decoded once, before the loader processes fork (they share the memory): a quarter of the RAM at most

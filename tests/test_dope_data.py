@@ -19,6 +19,7 @@ from dope_training.data import (
     blur_light,
     canonical_pose,
     input_scale,
+    jitter_colour,
     load_bop,
 )
 from dope_training.targets import (
@@ -310,3 +311,21 @@ def test_a_distance_map_is_read_between_the_cell_centres():
     for x, y in np.random.default_rng(0).uniform([0, 0], [3, 2], (20, 2)):  # fractional cells inside the map
         assert read_map(values, cells_to_pixels([x, y], 8), 8) == pytest.approx(4 * y + x)
     assert read_map(values, (-40.0, -40.0), 8) == 0.0 and read_map(values, (500.0, 500.0), 8) == 11.0
+
+
+@pytest.mark.parametrize("hue_deg", [6.0, 30.0])
+def test_the_hue_turn_spans_its_range_and_no_more(hue_deg):
+    # a saturated colour (scikit-image's HSV as the independent reference), every other jitter off
+    image = np.zeros((8, 8, 3), np.uint8)
+    image[:] = (200, 60, 40)
+    still = Augment(brightness=0, contrast=0, saturation=0, hue_deg=hue_deg, noise_std=0)
+    hue = color.rgb2hsv(image[:1, :1])[0, 0, 0] * 360
+    turns = []
+    for seed in range(300):
+        out = jitter_colour(image, np.random.default_rng(seed), still)
+        assert (out == out[0, 0]).all()  # one turn for the whole crop
+        turns.append((color.rgb2hsv(out[:1, :1])[0, 0, 0] * 360 - hue + 180) % 360 - 180)
+    turns = np.array(turns)
+    step = 2.0 + 1.5  # OpenCV's 8-bit hue steps by 2 degrees; rounding the RGB codes moves it a little more
+    assert np.abs(turns).max() <= hue_deg + step
+    assert turns.min() < step - hue_deg and turns.max() > hue_deg - step  # both ways, to the ends

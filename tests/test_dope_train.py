@@ -35,7 +35,7 @@ from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, on_centroid_ray
 from dope_training.model import build_model
 from dope_training.targets import distance_code
-from dope_training.train import ShardSampler, TrainConfig, loader_workers, train
+from dope_training.train import ShardSampler, TrainConfig, crop_augment, loader_workers, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
@@ -421,3 +421,12 @@ def test_a_persistent_loader_draws_each_epochs_own_augmentation(tmp_path):
         assert torch.equal(images, expected)
         seen.append(images)
     assert not torch.equal(seen[0], seen[1]) and not torch.equal(seen[1], seen[2])
+
+
+def test_the_crops_augmentation_is_the_one_the_config_asks_for():
+    cfg = TrainConfig(data=["x"], object="o", out="r", colour_jitter=0.3, hue_deg=25.0, blur_px=1.2,
+                      blur_linear_light=True)
+    aug = crop_augment(cfg)
+    assert (aug.brightness, aug.contrast, aug.saturation, aug.hue_deg) == (0.3, 0.3, 0.3, 25.0)
+    assert (aug.blur_px, aug.linear_light, aug.enabled) == (1.2, True, True)
+    assert not crop_augment(TrainConfig(data=["x"], object="o", out="r", augment=False)).enabled
