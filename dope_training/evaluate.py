@@ -12,6 +12,11 @@ estimate left over is a false positive (a duplicate included) unless it lies on 
 Figures: BOP's recall at 0.1 d (the share of counted instances whose error is below 10 % of the model's
 diameter d, from models_info), false positives per image, misses, pass rates at 2, 5 and 10 cm, and the
 AUC: the area under the pass-rate curve over thresholds 0..10 cm divided by 10 cm (1.0 = every error 0).
+When the dataset names its targets (``{split}_targets_bop19.json``, as BOP's test splits do) the report's
+``top_n`` also gives the same figures under BOP's rule: per image only the object's ``inst_count`` highest-scoring
+estimates (of those at or above ``min_score``) are kept, and only images where it is a target count (a method is
+told how many instances of each object an image holds); ``off_target`` counts the kept estimates on no counted
+instance, the false positives that remain when the counts are known.
 With depth refinement
 (``refine``) the refined poses are matched and scored the same way, a rejected refinement being a miss.
 With refinement against the RGB image (``refine_rgb``: the silhouette of the dataset's model of the object
@@ -38,7 +43,7 @@ from tqdm import tqdm
 from dope_training.infer import DopeModel, rgb_refined
 from dope_training.refine_rgb import decimated
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.formats.bop import bop_frames, models_info, read_model, result_row
+from pegasus_gen.formats.bop import bop_frames, models_info, read_model, read_targets_bop19, result_row
 from pegasus_gen.formats.drawing import draw_instance
 from pegasus_gen.geometry.pose_error import add_error, adds_error
 from pegasus_gen.io import images
@@ -130,6 +135,15 @@ def match_instances(points: np.ndarray, truths: list[np.ndarray], estimates: lis
     return sorted(out, key=lambda m: m[0]), false_positives
 
 
+def match_top_n(points: np.ndarray, truths: list[np.ndarray], estimates: list[tuple[float, np.ndarray]], count: int,
+                K: np.ndarray, ignored: list[np.ndarray] = ()) -> tuple[list, int]:
+    """:func:`match_instances` under BOP's rule: of ``estimates`` [(score, T_cam_obj [4, 4])] only the ``count``
+    highest-scoring (the image's inst_count of the object) are matched; the rest are neither hits nor false
+    positives."""
+    kept = sorted(estimates, key=lambda e: -e[0])[:count]
+    return match_instances(points, truths, [T for _, T in kept], K, ignored)
+
+
 def recall(errors: np.ndarray, threshold: float) -> float:
     """BOP's recall: the share of ``errors`` [N] (m, inf = miss) below ``threshold`` (m; e.g. 0.1 d)."""
     errors = np.asarray(errors, float)
@@ -214,6 +228,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         model_mesh = read_model(root, obj.obj_id)
         mesh = decimated(model_mesh.vertices, model_mesh.faces)
     matches, refined_errors, false_positives, rejected, results, frames = [], [], 0, 0, [], []
+    targets, top_errors, off_target = read_targets_bop19(root, split), [], 0  # BOP's top-n rule
     for frame in tqdm(list(bop_frames(root / split, max_images)), desc="eval", unit="img"):
         mine = [i for i in frame.instances if i.obj_id == obj.obj_id]
         seen = [i.visib_fract is None or i.visib_fract >= min_visibility for i in mine]
@@ -233,6 +248,12 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         solved = [e for e in estimates if e.T is not None]  # DOPE + PnP alone
         pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in solved], frame.K, ignored)
         false_positives += extra
+        count = targets.get((int(frame.scene.name), frame.im_id, obj.obj_id), 0) if targets is not None else 0
+        if count:
+            top_pairs, top_extra = match_top_n(points, [t.T for t in truths], [(e.score, e.T) for e in solved],
+                                               count, frame.K, ignored)
+            off_target += top_extra
+            top_errors += [(add, adds) for _, _, add, adds in top_pairs]
         metric_errors = []
         for i, j, add, adds in pairs:
             est = solved[j] if j is not None else None
@@ -267,6 +288,13 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
                                 "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
                                for m in matches],
               "frames": frames, "estimates": results}
+    if targets is not None:
+        t_add, t_adds = (np.array([e[k] for e in top_errors], float).reshape(-1) for k in (0, 1))
+        report["top_n"] = {"instances": len(top_errors), "misses": int((~np.isfinite(t_add)).sum()),
+                           "off_target": off_target,
+                           "off_target_per_image": off_target / len(frames) if frames else 0.0,
+                           "result": summary(t_adds if symmetric else t_add, diameter),
+                           "ADD": summary(t_add, diameter), "ADD-S": summary(t_adds, diameter)}
     if refine:
         r_add, r_adds = (np.array([e[k] for e in refined_errors], float).reshape(-1) for k in (0, 1))
         report["refined"] = {"rejected": rejected, "misses": int((~np.isfinite(r_add)).sum()),

@@ -27,6 +27,7 @@ from pegasus_gen.formats.bop import (
     gt_info_entry,
     pose_entry,
     read_bop_results,
+    read_targets_bop19,
     targets_bop19,
     write_bop_results,
 )
@@ -188,3 +189,12 @@ def test_test_targets_count_the_instances_seen_at_least_ten_percent(tmp_path):
             {im: [{"visib_fract": v} for _, v in inst] for im, inst in frames.items()}))
     expected = [(0, 0, 1, 1), (0, 0, 2, 1), (3, 1, 1, 2), (3, 1, 3, 1)]
     assert targets_bop19(tmp_path) == [dict(zip(("scene_id", "im_id", "obj_id", "inst_count"), e)) for e in expected]
+    # read back from the dataset's root as evaluation does: keyed by (scene, image, object), None without the file
+    listed, root = targets_bop19(tmp_path), tmp_path / "root"
+    assert read_targets_bop19(root, "test") is None
+    root.mkdir()
+    (root / "test_targets_bop19.json").write_text(json.dumps(listed))
+    assert read_targets_bop19(root, "test") == {e[:3]: e[3] for e in expected}
+    (root / "test_targets_bop19.json").write_text(json.dumps({"scene_id": 0}))
+    with pytest.raises(PegasusError, match="test_targets_bop19.json: not a list"):
+        read_targets_bop19(root, "test")

@@ -23,6 +23,7 @@ from dope_training.evaluate import (
     describe_found,
     evaluate,
     match_instances,
+    match_top_n,
     pass_rates,
     pose_breakdown,
     recall,
@@ -260,6 +261,26 @@ def test_estimates_match_the_instance_they_lie_on_and_every_other_one_is_a_false
     assert fp == 1 and pairs[0][1] == 1
     pairs, fp = match_instances(points, truths[:1], [_at(0, 0, 1.0), _at(0.3, 0, 1.0)], K, ignored=[truths[1]])
     assert fp == 0 and pairs[0][1] == 0
+
+
+def test_under_bops_top_n_rule_only_the_highest_scoring_estimates_count():
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    points = cuboid_points([-0.05, -0.05, -0.05], [0.1, 0.1, 0.1])
+    truths = [_at(0, 0, 1.0)]
+    right, elsewhere, duplicate = _at(0.002, 0, 1.0), _at(-0.5, 0, 1.0), _at(0.02, 0, 1.05)
+    estimates = [(0.4, right), (0.9, elsewhere), (0.3, duplicate)]
+    # all of them (the open-world rule): the instance found, two false positives
+    pairs, fp = match_instances(points, truths, [T for _, T in estimates], K)
+    assert pairs[0][1] == 0 and fp == 2
+    # one instance in the image: the best-scoring estimate alone, off the object: a miss and one off-target
+    pairs, off = match_top_n(points, truths, estimates, 1, K)
+    assert pairs[0][1] is None and np.isinf(pairs[0][2]) and off == 1
+    # two: the best two, so the instance is found and the lowest-scoring duplicate is not counted at all
+    pairs, off = match_top_n(points, truths, estimates, 2, K)
+    assert pairs[0][2] == pytest.approx(0.002) and off == 1
+    pairs, off = match_top_n(points, truths, [(0.9, duplicate), (0.4, right)], 2, K)
+    assert pairs[0][2] == pytest.approx(0.002) and off == 1  # matched by ADD-S among the kept, as before
+    assert match_top_n(points, truths, [], 1, K)[1] == 0 and match_top_n(points, truths, estimates, 0, K)[1] == 0
 
 
 def test_recall_at_a_tenth_of_the_diameter_is_bops_strict_threshold():

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -66,13 +67,20 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
                              "--out", str(out)],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
-    before_last, last = result.stdout.strip().splitlines()[-2:]
+    refined_line, top_line, last = result.stdout.strip().splitlines()[-3:]
     line = r"mean ADD\(-S\) 0\.1d recall \d\.\d{3}, AUC \d\.\d{3}, false positives per image \d+\.\d{2} over 1 objects"
-    assert re.fullmatch(r"real \+ RGB refinement: " + line, before_last), before_last
+    assert re.fullmatch(r"real \+ RGB refinement: " + line, refined_line), refined_line
     assert re.fullmatch(r"real: " + line, last), last
+    assert re.fullmatch(r"real, BOP's top-n rule: mean ADD\(-S\) 0\.1d recall \d\.\d{3}, AUC \d\.\d{3}, "
+                        r"off-target estimates per image \d+\.\d{2} over 1 objects", top_line), top_line
     doc = json.loads((out / "real.json").read_text())
     figures = doc["objects"]["1"]["real"]
     assert figures["images"] == 3 and figures["instances"] == 3  # every test image scored, one cup in each
+    # BOP's rule: the split's targets say how many cups each image holds; the best-scoring estimates alone count
+    targets = json.loads((real / "test_targets_bop19.json").read_text())
+    top = figures["top_n"]
+    assert top["instances"] == sum(t["inst_count"] for t in targets if t["obj_id"] == 1) == 3
+    assert top["recall_0_1d"] <= figures["recall_0_1d"] and doc["mean_top_n"]["auc"] == top["auc"]
     seconds = doc["seconds"]  # its minutes: its share of the library and data (one object here), training, scoring
     assert doc["objects"]["1"]["minutes"] == round(sum(seconds[k] for k in ("library", "generate", "train obj 1",
                                                                              "evaluate obj 1")) / 60, 1)
@@ -90,6 +98,16 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     assert doc["clutter"] == [2] and seen == {1, 2}
     assert doc["training_camera"]["width"] % 8 == 0 and (out / "eval" / "obj_000001" / "eval.json").is_file()
     assert json.loads((out / "eval_rgb" / "obj_000001" / "eval.json").read_text())["rgb_refined"]
+    # the photo-backed held-out frames are those of the photos training holds back: others are refused, not reused
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for k in range(2):
+        cv2.imwrite(str(photos / f"{k}.png"), np.full((60, 80, 3), 60 * k, np.uint8))
+    other = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "16",
+                            "--held-out-frames", "8", "--epochs", "1", "--device", "cpu", "--out", str(out),
+                            "--train", f"background_photos={photos}"], capture_output=True, text=True, timeout=300)
+    assert other.returncode == 2 and other.stderr.strip().count("\n") == 0, other.stderr[-2000:]
+    assert "held_out_photos" in other.stderr and str(photos) in other.stderr
     bad = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "99", "--out",
                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "obj_000099.ply" in bad.stderr

@@ -142,6 +142,11 @@ def cmd_eval(args) -> int:
           "pass 2/5/10 cm "
           f"{r['pass_2cm']:.2f}/{r['pass_5cm']:.2f}/{r['pass_10cm']:.2f}")
     print(f"median of the estimates on an instance: {describe_found(report['found_poses'])}")
+    if "top_n" in report:  # the split names its targets (how many of each object an image holds): BOP's rule
+        top = report["top_n"]
+        print(f"{report['metric']} under BOP's top-n rule (the split's targets): recall at 0.1 d "
+              f"{top['result']['recall_0_1d']:.3f}, AUC(0-10 cm) {top['result']['auc_0_10cm']:.3f}, "
+              f"{top['misses']} of {top['instances']} missed, {top['off_target_per_image']:.2f} off-target per image")
     if "refined" in report:
         r = report["refined"]["result"]
         print(f"{report['metric']} with depth refinement: recall at 0.1 d {r['recall_0_1d']:.3f}, AUC(0-10 cm) "

@@ -148,6 +148,20 @@ def targets_bop19(split_dir: Path, min_visib_fract: float = 0.1) -> list[dict]:
     return targets
 
 
+def read_targets_bop19(root: Path, split: str) -> dict[tuple[int, int, int], int] | None:
+    """A BOP dataset's targets for ``split`` (``ROOT/{split}_targets_bop19.json``, :func:`targets_bop19`'s form)
+    as {(scene_id, im_id, obj_id): inst_count}; None when the dataset has no such file. A malformed file is a
+    PegasusError."""
+    path = Path(root) / f"{split}_targets_bop19.json"
+    if not path.is_file():
+        return None
+    try:
+        return {(int(t["scene_id"]), int(t["im_id"]), int(t["obj_id"])): int(t["inst_count"]) for t in read_json(path)}
+    except (TypeError, KeyError, ValueError) as exc:
+        raise PegasusError(f"{path}: not a list of scene_id, im_id, obj_id, inst_count entries "
+                           f"({type(exc).__name__}: {exc})") from None
+
+
 BOP19_HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 
 
