@@ -210,10 +210,15 @@ def describe(name: str, figures: dict) -> str:
                "off-target per image" if top else ""))
 
 
-def summary_line(name: str, means: dict, objects: int) -> str:
-    """The closing line of ``means`` (recall, AUC, false positives per image) over ``objects``."""
-    return (f"{name}: mean ADD(-S) 0.1d recall {means['recall_0_1d']:.3f}, AUC {means['auc']:.3f}, false positives "
-            f"per image {means['false_positives_per_image']:.2f} over {objects} objects")
+PER_IMAGE = {"false_positives_per_image": "false positives per image",  # the open world
+             "off_target_per_image": "off-target estimates per image"}  # BOP's top-n rule
+
+
+def summary_line(name: str, means: dict, objects: int, per_image: str = "false_positives_per_image") -> str:
+    """The closing line of ``means`` (recall, AUC and the ``per_image`` count: a key of PER_IMAGE) over
+    ``objects``."""
+    return (f"{name}: mean ADD(-S) 0.1d recall {means['recall_0_1d']:.3f}, AUC {means['auc']:.3f}, "
+            f"{PER_IMAGE[per_image]} {means[per_image]:.2f} over {objects} objects")
 
 
 def main() -> int:
@@ -328,9 +333,7 @@ def main() -> int:
     if "real_rgb" in means:
         print(summary_line("real + RGB refinement", means["real_rgb"], len(ids)))
     if "top_n" in means:  # the split names its targets: the counts of instances a method is told under BOP's rule
-        m = means["top_n"]
-        print(f"real, BOP's top-n rule: mean ADD(-S) 0.1d recall {m['recall_0_1d']:.3f}, AUC {m['auc']:.3f}, "
-              f"off-target estimates per image {m['off_target_per_image']:.2f} over {len(ids)} objects")
+        print(summary_line("real, BOP's top-n rule", means["top_n"], len(ids), "off_target_per_image"))
     print(summary_line("real", means["real"], len(ids)))
     return 0
 
