@@ -15,12 +15,13 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    every scene (target and clutter of the others), each of the other models in half of the scenes, 3-8
    procedural distractors (half of them painted in the objects' colours; three quarters of the scenes packed
    together: ``PACKED``), the three built-in environments (half of the scenes repainted with a random texture),
-   generate's shadows and appearance randomisation, cameras ``--distance`` m from the objects at 20-75 degrees
-   elevation, motion blur at most as long as 5 % of an 8-frame scene's image motion per frame (``SHUTTER``), half
-   of the objects dropped standing (``UPRIGHT``), rendered antialiased (the meshes' splats otherwise look larger
-   than the objects: docs/TRAINING.md) at the recipe's network scale (``dope_training.recipe``) with the real
-   camera's shape, and ``--generate`` overrides on top; and a synthetic held-out set (another seed,
-   ``--held-out-frames`` frames of two per scene). A finished dataset in OUT is reused.
+   generate's shadows and appearance randomisation (each object's hue turned by up to ``OBJECT_HUE_DEG``),
+   cameras ``--distance`` m from the objects at 20-75 degrees elevation, motion blur at most as long as 5 % of an
+   8-frame scene's image motion per frame (``SHUTTER``), half of the objects dropped standing (``UPRIGHT``),
+   rendered antialiased (the meshes' splats otherwise look larger than the objects: docs/TRAINING.md) at the
+   recipe's network scale (``dope_training.recipe``) with the real camera's shape, and ``--generate`` overrides on
+   top; and a synthetic held-out set (another seed, ``--held-out-frames`` frames of two per scene). A finished
+   dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
 4. Per object: ``pegasus eval`` figures on the synthetic held-out set and on its photo-backed copy
@@ -105,6 +106,11 @@ PACKED = 0.75
 # half of the distractors painted in the objects' colours: packed scenes alone (run T) found more of the ape in the
 # photos but fired three times as often on real clutter (5.1 false positives per photo), on things of its colour
 DISTRACTORS = ["distractors.count=[3, 8]", "distractors.size=[0.05, 0.2]", "distractors.object_colours=0.5"]
+# each object instance's hue turned by up to this (degrees) either way in every scene (generate's default: 8): a
+# scan's colours are another camera's (the LM-O ape's model is red, the photos' ape orange-brown, their cat pink),
+# and with each instance turned on its own the networks must tell the objects apart by shape (run LL in
+# docs/TRAINING.md: the ape's and the duck's false positives per photo 0.81 / 0.56 -> 0.65 / 0.26)
+OBJECT_HUE_DEG = 30
 # the dataset's other models (DIR/models) dropped as clutter, each in half of the scenes, at most CLUTTER_MODELS of
 # them (a seeded choice): real shapes and colours beside the targets, where the procedural distractors are boxes,
 # cylinders and spheres (run W: the ape's and the duck's false positives per photo 2.67 -> 1.38 and 0.71 -> 0.39)
@@ -276,6 +282,7 @@ def main() -> int:
     common = [f"library={library.root}", f"environments={ENVIRONMENTS}", f"objects={objects}",
               f"min_objects={len(ids)}", f"frames_per_scene={FRAMES_PER_SCENE}", *DISTRACTORS, f"packed={PACKED}",
               "appearance.retexture=0.5", f"appearance.shutter={SHUTTER}",
+              f"appearance.object_hue_deg={OBJECT_HUE_DEG}",
               f"trajectory.distance=[{args.distance[0]}, {args.distance[1]}]",
               "trajectory.elevation_deg=[20, 75]", f"upright={UPRIGHT}", "antialiased=true",
               f"device={'cuda' if args.device == 'cuda' else 'cpu'}",

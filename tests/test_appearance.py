@@ -10,7 +10,7 @@ import trimesh
 from conftest import random_cloud
 from test_generate import config, dataset_files
 
-from pegasus_gen.dataset.appearance import frame_effects, image_motion
+from pegasus_gen.dataset.appearance import frame_effects, image_motion, object_colour_transforms
 from pegasus_gen.dataset.config import AppearanceConfig
 from pegasus_gen.dataset.validate import validate
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
@@ -78,6 +78,19 @@ def test_a_hue_turn_keeps_grey_and_brightness_and_turns_the_hue():
         hue = cv2.cvtColor(turned, cv2.COLOR_RGB2HSV)[0, 0, 0]  # OpenCV float hue: degrees
         assert (hue - degrees) % 360 == pytest.approx(0, abs=2) or (degrees - hue) % 360 == pytest.approx(0, abs=2)
     np.testing.assert_allclose(hue_rotation(30) @ hue_rotation(50), hue_rotation(80), atol=1e-12)
+
+
+@pytest.mark.parametrize("hue_deg", [8.0, 30.0])
+def test_each_instance_turns_its_hue_on_its_own_across_the_range_and_no_further(hue_deg):
+    cfg = AppearanceConfig(object_gain=(1.0, 1.0), object_hue_deg=hue_deg)
+    transforms = object_colour_transforms(cfg, 400, np.random.default_rng(3))
+    red = np.array([0.7, 0.35, 0.35], np.float32)  # hue 0, unsaturated: no turn leaves 0..1
+    turned = np.stack([np.clip(M @ red, 0, 1) for M in transforms]).astype(np.float32)[None]
+    hue = cv2.cvtColor(turned, cv2.COLOR_RGB2HSV)[0, :, 0]  # OpenCV float hue: degrees
+    turns = (hue + 180) % 360 - 180
+    assert np.abs(turns).max() <= hue_deg + 1  # within the range (OpenCV's hue of a clipped colour: < 1 degree off)
+    assert turns.min() < 1 - 0.9 * hue_deg and turns.max() > 0.9 * hue_deg - 1  # both ways, near the ends
+    assert abs(np.corrcoef(turns[:-1], turns[1:])[0, 1]) < 0.2  # one instance's turn says nothing of the next's
 
 
 def test_a_camera_without_effects_changes_nothing():

@@ -1,6 +1,7 @@
 """The sim-to-real recipe's choices from the object's size and the camera, and benchmarks/real.py end to end on
 a tiny generated stand-in for a real BOP test split."""
 
+import importlib.util
 import json
 import re
 import subprocess
@@ -10,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from dope_training.evaluate import score_threshold
 from dope_training.recipe import (
@@ -21,7 +23,7 @@ from dope_training.recipe import (
     network_focal,
     training_camera,
 )
-from pegasus_gen.dataset.config import load_config
+from pegasus_gen.dataset.config import AppearanceConfig, load_config
 from pegasus_gen.dataset.generate import generate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -96,6 +98,12 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     seen = {g["obj_id"] for p in (out / "data" / "train_pbr").glob("*/scene_gt.json")
             for gts in json.loads(p.read_text()).values() for g in gts}
     assert doc["clutter"] == [2] and seen == {1, 2}
+    # each object's own hue turn: real.py's, wider than generate's default
+    spec = importlib.util.spec_from_file_location("real_benchmark", script)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    hue = yaml.safe_load((out / "data" / "pegasus_config.yaml").read_text())["appearance"]["object_hue_deg"]
+    assert hue == bench.OBJECT_HUE_DEG > AppearanceConfig().object_hue_deg
     assert doc["training_camera"]["width"] % 8 == 0 and (out / "eval" / "obj_000001" / "eval.json").is_file()
     assert json.loads((out / "eval_rgb" / "obj_000001" / "eval.json").read_text())["rgb_refined"]
     # the photo-backed held-out frames are those of the photos training holds back: others are refused, not reused
@@ -112,3 +120,6 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     bad = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "99", "--out",
                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "obj_000099.ply" in bad.stderr
+    nowhere = subprocess.run([sys.executable, script, "--real", str(tmp_path / "nowhere"), "--objects", "1", "--out",
+                              str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
+    assert nowhere.returncode == 2 and nowhere.stderr.strip().count("\n") == 0 and "nowhere" in nowhere.stderr

@@ -299,6 +299,8 @@ def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
     ``max_per_scene`` of each scene when given). A scene whose JSON files do not follow the BOP format is a
     PegasusError naming the file and what is wrong."""
     split_dir = Path(split_dir)
+    if not split_dir.is_dir():
+        raise PegasusError(f"{split_dir}: no such folder (a BOP split: one folder per scene)")
     for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
         yield from _scene_frames(scene, max_per_scene)
 
