@@ -300,7 +300,7 @@ def bop_frames(split_dir: str | Path, max_per_scene: int | None = None):
     PegasusError naming the file and what is wrong."""
     split_dir = Path(split_dir)
     if not split_dir.is_dir():
-        raise PegasusError(f"{split_dir}: no such folder (a BOP split: one folder per scene)")
+        raise PegasusError(f"{split_dir.parent}: no {split_dir.name}/ folder, so not a BOP dataset")
     for scene in sorted(p for p in split_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
         yield from _scene_frames(scene, max_per_scene)
 
