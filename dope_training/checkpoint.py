@@ -28,7 +28,9 @@ class TargetObject:
     """The object a network is trained for: what PnP, depth refinement and evaluation need without the
     dataset. ``surface_points``/``surface_normals`` [N, 3] (metres, model frame; unit normals): samples of
     the model's surface for depth refinement, None when the training data had no model (DOPE/NDDS folders);
-    ``symmetry_axis`` [3]: the axis of a continuous rotational symmetry (model frame), if any."""
+    ``symmetry_axis`` [3]: the axis of a continuous rotational symmetry (model frame), if any; ``keypoints``
+    [9, 3] (metres, model frame): the points the network's 9 keypoints are (``dope_training.keypoints``), None
+    for DOPE's cuboid of the model box."""
 
     obj_id: int
     name: str
@@ -38,6 +40,7 @@ class TargetObject:
     surface_points: list[list[float]] | None = None
     surface_normals: list[list[float]] | None = None
     symmetry_axis: list[float] | None = None
+    keypoints: list[list[float]] | None = None
 
 
 def target_object(doc, where: str) -> TargetObject:
@@ -48,12 +51,15 @@ def target_object(doc, where: str) -> TargetObject:
         obj = TargetObject(**doc)
         box = np.array([obj.bbox_min, obj.bbox_size], dtype=np.float64)
         surface = [np.array(v, dtype=np.float64) for v in (obj.surface_points, obj.surface_normals) if v is not None]
+        keypoints = None if obj.keypoints is None else np.array(obj.keypoints, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise PegasusError(f"{where}: not a pegasus object description ({exc})") from None
     if box.shape != (2, 3) or not np.isfinite(box).all() or (box[1] <= 0).any():
         raise PegasusError(f"{where}: the object's model box is not 3 finite numbers (sizes > 0)")
     if any(v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all() for v in surface) or len(surface) == 1:
         raise PegasusError(f"{where}: the object's surface points and normals are not [N, 3] finite numbers")
+    if keypoints is not None and (keypoints.shape != (9, 3) or not np.isfinite(keypoints).all()):
+        raise PegasusError(f"{where}: the object's keypoints are not [9, 3] finite numbers")
     return obj
 
 

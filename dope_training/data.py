@@ -2,7 +2,8 @@
 instance -> augmented crops with belief and affinity targets, and distance targets for a distance head.
 
 A sample is one image and its instances of the target objects: the 9 DOPE keypoints (cuboid corners of
-the model's bounding box in DOPE's order, then its centre) projected with the GT pose and K, in pixels.
+the model's bounding box in DOPE's order, then its centre, or other object points: ``dope_training.keypoints``)
+projected with the GT pose and K, in pixels.
 Instances seen less than ``min_visibility`` (BOP visib_fract) are dropped: their keypoints do not
 become targets.
 
@@ -93,17 +94,20 @@ def canonical_pose(T_cam_obj: np.ndarray, axis) -> np.ndarray:
 
 
 def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility: float = 0.1,
-             symmetry_axis=None, keep_empty: bool = False) -> list[Sample]:
+             symmetry_axis=None, keep_empty: bool = False,
+             keypoints: dict[int, np.ndarray] | None = None) -> list[Sample]:
     """Samples of every image of a BOP split holding at least one visible instance of ``objects``
     (obj_ids or names), and with ``keep_empty`` of the other images too (no keypoints: negative examples);
-    with ``symmetry_axis`` [3] (object frame), canonical labels (``canonical_pose``)."""
+    with ``symmetry_axis`` [3] (object frame), canonical labels (``canonical_pose``); ``keypoints``: {obj_id:
+    [9, 3] object points (m, model frame)} projected instead of that object's cuboid."""
     root = Path(root)
     split_dir = root / split
     if not split_dir.is_dir():
         raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset")
     boxes = model_boxes(root)
     wanted = set(resolve_objects(objects, boxes, object_names(root), str(root)))
-    cuboids = {k: cuboid_points(*boxes[k]) for k in wanted}
+    points = {k: cuboid_points(*boxes[k]) for k in wanted} | {k: np.asarray(v, np.float64)
+                                                              for k, v in (keypoints or {}).items() if k in wanted}
     samples = []
     for frame in bop_frames(split_dir):
         where = f"{frame.scene}: image {frame.im_id}"
@@ -113,15 +117,15 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
             visib = 1.0 if inst.visib_fract is None else inst.visib_fract
             if inst.obj_id in wanted and visib >= min_visibility:
                 T = inst.T if symmetry_axis is None else canonical_pose(inst.T, symmetry_axis)
-                keypoints = project_points(cuboids[inst.obj_id], T, frame.K)
-                if not np.isfinite(keypoints).all():
+                projected = project_points(points[inst.obj_id], T, frame.K)
+                if not np.isfinite(projected).all():
                     raise PegasusError(f"{where} (scene_gt.json), instance {inst.index}: the pose "
                                        f"{np.round(inst.T[:3], 4).tolist()} does not project the object to finite "
                                        "pixels (not finite, or its centre on the camera plane)")
-                sample.keypoints.append(keypoints)
+                sample.keypoints.append(projected)
                 sample.obj_ids.append(inst.obj_id)
                 sample.visibility.append(visib)
-                sample.depths.append(float(T[2, :3] @ cuboids[inst.obj_id][8] + T[2, 3]))
+                sample.depths.append(float(T[2, :3] @ points[inst.obj_id][8] + T[2, 3]))
         if sample.keypoints or keep_empty:
             samples.append(sample)
     return samples

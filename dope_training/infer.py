@@ -31,13 +31,13 @@ import torch
 from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_checkpoint, target_object
 from dope_training.data import input_scale
 from dope_training.decode import find_keypoints
+from dope_training.keypoints import object_keypoints
 from dope_training.model import check_memory, config_from_dict, memory_estimate
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
 from dope_training.refine_rgb import RgbRefinement, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, read_map
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.geometry.cuboid import cuboid_points
 
 NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])  # the object's axes, 1 m ahead
 
@@ -88,24 +88,25 @@ def rgb_refined(poses: list[ObjectPose], min_score: float = 0.0) -> list[ObjectP
     return sorted((p for p in out if p.score >= min_score), key=lambda p: -p.score)
 
 
-def on_centroid_ray(T_cam_obj: np.ndarray, cuboid: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
+def on_centroid_ray(T_cam_obj: np.ndarray, points: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
                     dist: np.ndarray | None = None, depth_m: np.ndarray | None = None,
                     z_m: float | None = None) -> np.ndarray:
-    """T_cam_obj [4, 4] moved so that the object's centre (``cuboid`` [9, 3]: its box corners and centre, m,
-    object frame) lies on the ray through the detected centroid ``centroid_px`` [2] (image px): DOPE's
-    centroid is its surest keypoint, while PnP lets wrong corners drag the centre off it, and its distance
-    with it. The centre keeps its z, or takes ``z_m`` (m: the distance head's), or with ``depth_m`` [H, W] (m,
-    0 = none) the median depth of the 9x9 px around the centroid plus half the box's depth along the optical
-    axis at the PnP rotation (the surface seen there is the object's front: the start of depth refinement)."""
+    """T_cam_obj [4, 4] moved so that the object's centre (``points`` [9, 3]: the network's object points,
+    m, object frame, the last its box's centre) lies on the ray through the detected centroid ``centroid_px``
+    [2] (image px): DOPE's centroid is its surest keypoint, while PnP lets wrong corners drag the centre off
+    it, and its distance with it. The centre keeps its z, or takes ``z_m`` (m: the distance head's), or with
+    ``depth_m`` [H, W] (m, 0 = none) the median depth of the 9x9 px around the centroid plus half the points'
+    depth along the optical axis at the PnP rotation (the surface seen there is the object's front: the start
+    of depth refinement)."""
     ray = cv2.undistortPoints(np.asarray(centroid_px, np.float64).reshape(1, 1, 2), K, dist).reshape(2)
-    centre = T_cam_obj[:3, :3] @ cuboid[8] + T_cam_obj[:3, 3]
+    centre = T_cam_obj[:3, :3] @ points[8] + T_cam_obj[:3, 3]
     z = centre[2] if z_m is None else z_m
     if depth_m is not None:
         u, v = np.round(np.asarray(centroid_px)).astype(int)
         window = depth_m[max(v - 4, 0):max(v + 5, 0), max(u - 4, 0):max(u + 5, 0)]
         window = window[np.isfinite(window) & (window > 0)]
         if window.size:
-            offsets = (cuboid[:8] - cuboid[8]) @ T_cam_obj[2, :3]
+            offsets = (points[:8] - points[8]) @ T_cam_obj[2, :3]
             z = float(np.median(window)) + float(np.ptp(offsets)) / 2
     out = T_cam_obj.copy()
     out[:3, 3] += np.r_[ray * z, z] - centre
@@ -167,7 +168,7 @@ class DopeModel:
             self._init_onnx(path, device)
         else:
             self._init_torch(path, device)
-        self.cuboid = cuboid_points(self.object.bbox_min, self.object.bbox_size)
+        self.points = object_keypoints(self.object.keypoints, self.object.bbox_min, self.object.bbox_size)  # [9, 3] m
         obj = self.object  # surface samples for depth refinement, as arrays once (None: trained without a model)
         self.surface = None if obj.surface_points is None else (np.asarray(obj.surface_points, np.float64),
                                                                 np.asarray(obj.surface_normals, np.float64))
@@ -260,16 +261,16 @@ class DopeModel:
         poses = []
         for det in find_keypoints(beliefs, affinities, stride=STRIDE, min_score=min_score):
             keypoints = (det.keypoints + 0.5) / [sx, sy] - 0.5
-            T, error = solve_pose(keypoints, self.cuboid, K, dist) or (None, np.nan)
+            T, error = solve_pose(keypoints, self.points, K, dist) or (None, np.nan)
             if T is None and depth_m is None:
                 continue
             if T is not None and distance is not None:
                 code = read_map(distance, det.keypoints[8], STRIDE)
                 z = float(distance_from_code(code, mapped_focal(K, np.diag([sx, sy]))))
-                T = on_centroid_ray(T, self.cuboid, keypoints[8], K, dist, z_m=z)
+                T = on_centroid_ray(T, self.points, keypoints[8], K, dist, z_m=z)
             pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:
-                start = on_centroid_ray(NO_PNP_START if T is None else T, self.cuboid, keypoints[8], K, dist, depth_m)
+                start = on_centroid_ray(NO_PNP_START if T is None else T, self.points, keypoints[8], K, dist, depth_m)
                 pose.refinement = refine_multistart(start, depth_m, K, *self.surface, self.object.symmetry_axis)
                 if pose.T is None and not pose.refinement.accepted:
                     continue

@@ -40,6 +40,7 @@ from dope_training.backbone import load_pretrained
 from dope_training.backgrounds import load_photos, split_photos
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
 from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
+from dope_training.keypoints import surface_keypoints
 from dope_training.model import (
     DopeNetwork,
     ModelConfig,
@@ -88,10 +89,16 @@ def load_training_samples(cfg: TrainConfig):
             axis = cfg.symmetry_axis or next((s["axis"] for s in info.get("symmetries_continuous", [])), None)
             symmetric = bool(info.get("symmetries_discrete")) or axis is not None
             points, normals = surface_samples(root, obj_id)
+            keypoints = (surface_keypoints(read_model(root, obj_id), *boxes[obj_id]) if cfg.keypoints == "surface"
+                         else None)
             found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric,
-                                 points.tolist(), normals.tolist(), None if axis is None else list(axis))
-            samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility, axis, keep_empty=cfg.negatives > 0)
+                                 points.tolist(), normals.tolist(), None if axis is None else list(axis),
+                                 None if keypoints is None else keypoints.tolist())
+            samples += load_bop(root, [obj_id], cfg.split, cfg.min_visibility, axis, keep_empty=cfg.negatives > 0,
+                                keypoints=None if keypoints is None else {obj_id: keypoints})
         elif root.is_dir():
+            if cfg.keypoints != "cuboid":
+                raise PegasusError(f"{root}: a DOPE/NDDS folder labels the cuboid only (--keypoints cuboid)")
             if cfg.object_size is None:
                 raise PegasusError(f"{root}: a DOPE/NDDS folder needs --object-size X Y Z (metres) for the cuboid")
             size = np.asarray(cfg.object_size, float)

@@ -41,6 +41,10 @@ class TrainConfig(BaseModel):
         "constant", description="learning rate over the run: constant (DOPE), or cosine decay to 1/100 of lr")
     peak_weight: float = Field(0.0, ge=0.0, description="belief cells' squared error weighted by 1 + this * target "
                                                         "(DOPE: 0)")
+    keypoints: Literal["cuboid", "surface"] = Field(
+        "cuboid", description="the object points the network learns to find: cuboid (DOPE's: the model box's corners "
+                              "and centre) or surface (8 farthest points on the model's surface and the box's "
+                              "centre; BOP data)")
     symmetry_axis: Optional[tuple[float, float, float]] = Field(
         None, description="axis (object frame) about which the object's shape is rotationally symmetric: canonical "
                           "labels about it (default: the dataset's symmetries_continuous, if any)")

@@ -142,7 +142,7 @@ def test_a_distance_head_places_each_pose_on_its_centroids_ray_at_the_distance_i
         "beliefs", "affinities", "distance"]
     for path in (tmp_path / "head.pt", onnx_path):
         model = DopeModel(path)
-        placed, centre_obj = estimates(model), model.cuboid[8]
+        placed, centre_obj = estimates(model), model.points[8]
         assert len(placed) == len(plain) >= 2
         for a, b in zip(placed, plain):
             np.testing.assert_allclose(a.T[:3, :3], b.T[:3, :3], atol=1e-4)  # ONNX's maps: torch's within 1e-4
