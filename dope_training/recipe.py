@@ -30,6 +30,9 @@ COLOUR_JITTER = 0.4
 # light than the robot's (run KK in docs/TRAINING.md)
 HUE_DEG = 30.0
 VARIANT = "pretrained"  # the network the recipe trains (TrainConfig.variant)
+# the object points the network learns: 8 on the model's surface instead of the box's corners (run MM in
+# docs/TRAINING.md: rotation on generated frames halved, the four objects' photos better on all three figures)
+KEYPOINTS = "surface"
 # the detection score is the lowest at which the network leaves this many false positives per image on generated
 # held-out frames and still finds this share of the instances it finds there (evaluate.score_threshold): generated
 # frames hold far fewer look-alikes than photos, so their false positives alone set too low a score
@@ -66,8 +69,10 @@ def training_camera(focal_px: float, camera: RealCamera) -> dict:
 def train_fields(focal_px: float, epochs: int) -> dict:
     """TrainConfig fields of the recipe: CROP_PX crops at ``focal_px``, the demo's optimiser settings,
     NEGATIVES of the crops on random points of the image, BACKGROUNDS of them with a real photograph behind the
-    objects, blur and colour jitter as a real camera's, the hue turned by up to HUE_DEG, and a distance head (the
-    distance from how large the object looks, not from the spread of its corners)."""
+    objects, blur and colour jitter as a real camera's, the hue turned by up to HUE_DEG, KEYPOINTS on the object's
+    surface, and a distance head (the distance from how large the object looks, not from the spread of its
+    keypoints)."""
     return {"size": CROP_PX, "focal_px": round(focal_px, 3), "epochs": epochs, "lr": 2e-3,
             "schedule": "cosine", "peak_weight": 10.0, "negatives": NEGATIVES, "backgrounds": BACKGROUNDS,
-            "blur_px": BLUR_PX, "colour_jitter": COLOUR_JITTER, "hue_deg": HUE_DEG, "distance_head": True}
+            "blur_px": BLUR_PX, "colour_jitter": COLOUR_JITTER, "hue_deg": HUE_DEG, "keypoints": KEYPOINTS,
+            "distance_head": True}

@@ -13,10 +13,13 @@ import numpy as np
 import pytest
 import yaml
 
+from dope_training.checkpoint import load_checkpoint
 from dope_training.evaluate import score_threshold
+from dope_training.keypoints import surface_keypoints
 from dope_training.recipe import (
     HELD_OUT_FALSE_POSITIVES,
     HELD_OUT_KEEP_FOUND,
+    KEYPOINTS,
     MAX_ENLARGE,
     OBJECT_PX,
     RealCamera,
@@ -25,6 +28,7 @@ from dope_training.recipe import (
 )
 from pegasus_gen.dataset.config import AppearanceConfig, load_config
 from pegasus_gen.dataset.generate import generate
+from pegasus_gen.formats.bop import model_boxes, read_model
 
 ROOT = Path(__file__).resolve().parents[1]
 KINECT = RealCamera(np.array([[572.41, 0, 325.26], [0, 573.57, 242.04], [0, 0, 1]]), 640, 480)
@@ -104,6 +108,11 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     spec.loader.exec_module(bench)
     hue = yaml.safe_load((out / "data" / "pegasus_config.yaml").read_text())["appearance"]["object_hue_deg"]
     assert hue == bench.OBJECT_HUE_DEG > AppearanceConfig().object_hue_deg
+    # the network learns the recipe's points on the cup's surface, and inference reads them from its checkpoint
+    state = load_checkpoint(out / "runs" / "obj_000001" / "last.pt")
+    assert state["train_config"]["keypoints"] == KEYPOINTS == "surface"
+    np.testing.assert_allclose(state["object"]["keypoints"],
+                               surface_keypoints(read_model(out / "data", 1), *model_boxes(out / "data")[1]))
     assert doc["training_camera"]["width"] % 8 == 0 and (out / "eval" / "obj_000001" / "eval.json").is_file()
     assert json.loads((out / "eval_rgb" / "obj_000001" / "eval.json").read_text())["rgb_refined"]
     # the photo-backed held-out frames are those of the photos training holds back: others are refused, not reused
