@@ -15,7 +15,6 @@ import trimesh
 
 from pegasus_gen.geometry.cuboid import cuboid_points
 
-KINDS = ("cuboid", "surface")
 SURFACE_CANDIDATES = 5000  # area-uniform samples of the model's surface the farthest points are chosen from
 
 
