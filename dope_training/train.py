@@ -67,10 +67,9 @@ RESUMABLE_KEYS = {"epochs", "device", "loader_workers", "keep_checkpoints", "che
 SURFACE_SAMPLES = 500  # model surface points a checkpoint carries for depth refinement
 
 
-def surface_samples(root: Path, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
-    """Points and unit normals [SURFACE_SAMPLES, 3] (metres, model frame) on the BOP model of ``obj_id``,
-    area-uniform, the same for every run."""
-    mesh = read_model(root, obj_id)
+def surface_samples(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """Points and unit normals [SURFACE_SAMPLES, 3] (the mesh's units, model frame) on ``mesh`` (a BOP model,
+    ``read_model``: metres), area-uniform, the same for every run."""
     points, faces = trimesh.sample.sample_surface(mesh, SURFACE_SAMPLES, seed=0)
     return points, mesh.face_normals[faces]
 
@@ -88,9 +87,9 @@ def load_training_samples(cfg: TrainConfig):
             name = next((n for n, i in names.items() if i == obj_id), str(obj_id))
             axis = cfg.symmetry_axis or next((s["axis"] for s in info.get("symmetries_continuous", [])), None)
             symmetric = bool(info.get("symmetries_discrete")) or axis is not None
-            points, normals = surface_samples(root, obj_id)
-            keypoints = (surface_keypoints(read_model(root, obj_id), *boxes[obj_id]) if cfg.keypoints == "surface"
-                         else None)
+            mesh = read_model(root, obj_id)
+            points, normals = surface_samples(mesh)
+            keypoints = surface_keypoints(mesh, *boxes[obj_id]) if cfg.keypoints == "surface" else None
             found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric,
                                  points.tolist(), normals.tolist(), None if axis is None else list(axis),
                                  None if keypoints is None else keypoints.tolist())
