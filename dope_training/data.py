@@ -102,8 +102,6 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
     [9, 3] object points (m, model frame)} projected instead of that object's cuboid."""
     root = Path(root)
     split_dir = root / split
-    if not split_dir.is_dir():
-        raise PegasusError(f"{root}: no {split}/ folder, so not a BOP dataset")
     boxes = model_boxes(root)
     wanted = set(resolve_objects(objects, boxes, object_names(root), str(root)))
     points = {k: cuboid_points(*boxes[k]) for k in wanted} | {k: np.asarray(v, np.float64)
