@@ -6,15 +6,14 @@ Steps: the image is scaled to the training crops' nominal scale (``data.input_sc
 multiple of 8, run; belief peaks are grouped into instances by the affinities (``decode.find_keypoints``); the
 keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as cv2.resize
 samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt, keypoints that do not fit the others
-dropped) with the camera K gives the pose; a network with a distance head then moves it to the distance the
-head reads at the detected centroid, onto the ray through that centroid (``on_centroid_ray``; box-corner
-keypoints) or along the ray through PnP's own centre (``along_own_ray``; keypoints on the object's surface).
-Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid counts as one) are solved, see
-``pnp``. With a depth image, each pose is then refined against it (``refine.refine_multistart``), starting from the
-pose moved onto the ray through the detected centroid at the depth seen there (``on_centroid_ray``). A centroid
-whose keypoints PnP cannot solve (too few corners joined it, or they put the object behind the camera) is then
-not lost: its refinement starts on the same ray with the object's own axes (the several-start refinement tries
-the other rotations), and it is kept when the depth confirms it. With the object's mesh instead, each solved pose is
+dropped) with the camera K gives the pose; a network with a distance head then moves it onto the ray through
+the detected centroid at the distance the head reads there (``on_centroid_ray``). Missing corners do not drop a
+detection: any 5 of the 9 keypoints (the centroid counts as one) are solved, see ``pnp``. With a depth image,
+each pose is then refined against it (``refine.refine_multistart``), starting from the pose moved onto the ray
+through the detected centroid at the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP
+cannot solve (too few corners joined it, or they put the object behind the camera) is then not lost: its
+refinement starts on the same ray with the object's own axes (the several-start refinement tries the other
+rotations), and it is kept when the depth confirms it. With the object's mesh instead, each solved pose is
 refined against the RGB image itself (``refine_rgb``: its silhouette fitted to the image's colour edges).
 """
 
@@ -87,19 +86,6 @@ def rgb_refined(poses: list[ObjectPose], min_score: float = 0.0) -> list[ObjectP
     out = [replace(p, T=p.rgb_refinement.T, score=p.score * p.rgb_refinement.support)
            for p in poses if p.rgb_refinement is not None]
     return sorted((p for p in out if p.score >= min_score), key=lambda p: -p.score)
-
-
-def along_own_ray(T_cam_obj: np.ndarray, points: np.ndarray, z_m: float) -> np.ndarray:
-    """T_cam_obj [4, 4] moved along the ray through the object's centre (``points`` [9, 3], m, object frame, the
-    last its box's centre) until that centre lies ``z_m`` (m, along the optical axis) from the camera: PnP's
-    direction, the distance head's distance. For keypoints on the object's surface, where PnP over all nine
-    places the centre better than the centroid's keypoint alone (generated held-out frames: lateral error 3.7 /
-    2.3 / 6.5 / 7.2 mm against 4.7 / 2.8 / 8.7 / 7.7 for LM-O's ape, duck, cat, holepuncher); the box's corners
-    lie off the object, and there the centroid's ray is the better one (``on_centroid_ray``)."""
-    centre = T_cam_obj[:3, :3] @ points[8] + T_cam_obj[:3, 3]
-    out = T_cam_obj.copy()
-    out[:3, 3] += centre * (z_m / centre[2] - 1.0)
-    return out
 
 
 def on_centroid_ray(T_cam_obj: np.ndarray, points: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
@@ -281,8 +267,7 @@ class DopeModel:
             if T is not None and distance is not None:
                 code = read_map(distance, det.keypoints[8], STRIDE)
                 z = float(distance_from_code(code, mapped_focal(K, np.diag([sx, sy]))))
-                T = on_centroid_ray(T, self.points, keypoints[8], K, dist, z_m=z) if self.object.keypoints is None \
-                    else along_own_ray(T, self.points, z)
+                T = on_centroid_ray(T, self.points, keypoints[8], K, dist, z_m=z)
             pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:
                 start = on_centroid_ray(NO_PNP_START if T is None else T, self.points, keypoints[8], K, dist, depth_m)

@@ -1,20 +1,18 @@
 """The object points a DOPE network learns (``dope_training.keypoints``): farthest-point sampling against a brute-force
 reference and a hand case, a box's surface points at its corners, and a network trained on surface points carrying
-them into its checkpoint, its training targets and its inference's PnP, whose centre (not the centroid's keypoint
-alone) then sets the ray the distance head's distance is taken along."""
+them into its checkpoint, its training targets and its inference's PnP."""
 
 import json
 
 import numpy as np
 import pytest
 import trimesh
-from scipy.spatial.transform import Rotation
 
 from dope_training.checkpoint import load_checkpoint
 from dope_training.data import canonical_pose
-from dope_training.infer import DopeModel, along_own_ray, on_centroid_ray
+from dope_training.infer import DopeModel
 from dope_training.keypoints import farthest_points, object_keypoints, surface_keypoints
-from dope_training.targets import distance_code, make_distance_targets, make_targets
+from dope_training.targets import make_targets
 from dope_training.train import TrainConfig, load_training_samples, train
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import model_boxes, read_model
@@ -97,41 +95,10 @@ def test_a_network_trained_on_surface_points_carries_them_into_its_targets_and_s
     found = model.estimate(image, K)
     for T in inside:
         assert min(add_error(surface, p.T, T) for p in found) < 0.002  # m, of a 9 cm cup
-    # The distance head's distance is taken along PnP's centre's ray: a centroid keypoint 6 px off (the eight
-    # surface points exact) leaves the pose where the nine points put it, where the centroid's ray would not
-    shifted = projected.copy()
-    shifted[:, 8] += 6.0
-    beliefs, affinities = make_targets(shifted, np.ones(projected.shape[:2], bool), h, w)
-    depths = np.array([(T[:3, :3] @ expected[8] + T[:3, 3])[2] for T in poses])
-    codes = make_distance_targets(shifted[:, 8], distance_code(depths, np.sqrt(K[0, 0] * K[1, 1])), h, w)[0][0]
-    model.maps = lambda image, K: (beliefs, affinities, codes, (1.0, 1.0))
-    found = model.estimate(image, K)
-    for T in inside:
-        best = min(found, key=lambda p: add_error(surface, p.T, T))
-        assert add_error(surface, best.T, T) < 0.002
-        on_ray = on_centroid_ray(best.T, model.points, best.keypoints[8], K)
-        assert add_error(surface, on_ray, T) > 0.004  # 6 px aside at 0.5-1 m
-
     model.points = cuboid_points(model.object.bbox_min, model.object.bbox_size)  # the cuboid's points misread them
-    model.maps = lambda image, K: (beliefs, affinities, None, (1.0, 1.0))
     misread = model.estimate(image, K)
     for T in inside:
         assert min(add_error(surface, p.T, T) for p in misread) > 0.01
-
-
-def test_along_own_ray_keeps_the_rotation_and_the_centres_direction_and_sets_its_distance():
-    rng = np.random.default_rng(3)
-    points = rng.uniform(-0.05, 0.05, (9, 3))
-    for _ in range(50):
-        T = np.eye(4)
-        T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
-        T[:3, 3] = rng.uniform([-0.3, -0.3, 0.3], [0.3, 0.3, 1.5])
-        z = rng.uniform(0.2, 2.0)
-        moved = along_own_ray(T, points, z)
-        np.testing.assert_array_equal(moved[:3, :3], T[:3, :3])
-        before, after = (M[:3, :3] @ points[8] + M[:3, 3] for M in (T, moved))
-        assert after[2] == pytest.approx(z)
-        np.testing.assert_allclose(after / np.linalg.norm(after), before / np.linalg.norm(before), atol=1e-12)
 
 
 def test_surface_keypoints_need_a_bop_model(tmp_path):
