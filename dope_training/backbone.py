@@ -71,6 +71,21 @@ class LiteTrunk(nn.Module):
         super().__init__()
         self.stem = nn.Sequential(*_conv_bn(3, STEM_CHANNELS, 3, 2))
         self.blocks = nn.Sequential(*(MBConv(*b) for b in BLOCKS))
+        self.frozen = 0
+
+    def freeze(self, blocks: int) -> None:
+        """Keep the stem and the first ``blocks`` blocks as they are: no gradients, BatchNorm statistics fixed
+        (those modules stay in eval mode whatever ``train()`` is asked)."""
+        self.frozen = blocks
+        for module in (self.stem, *self.blocks[:blocks]):
+            module.requires_grad_(False)
+        self.train(self.training)
+
+    def train(self, mode: bool = True) -> "LiteTrunk":
+        super().train(mode)
+        for module in (self.stem, *self.blocks[:self.frozen]) if self.frozen else ():
+            module.eval()
+        return self
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         fine = self.blocks[:FINE](self.stem(x))

@@ -159,24 +159,35 @@ def summary(errors: np.ndarray, diameter_m: float) -> dict:
             "median_m": float(np.median(found)) if len(found) else None}
 
 
-def pose_breakdown(matches: list[Match], symmetric: bool) -> dict:
+def pose_breakdown(matches: list[Match], symmetric: bool, points: np.ndarray, diameter_m: float) -> dict:
     """How the estimates found on an instance miss its pose: over the matched instances with an estimate, the
     median distance ratio (estimated / true distance from the camera: a wrong scale shows as a ratio off 1),
     the median lateral error (m: how far the estimate's centre, moved along its own viewing ray to the true
-    distance, lies from the true centre), and for asymmetric objects the median rotation error (degrees) and the
-    share beyond 90 degrees (the object's orientation mistaken); None where nothing was found."""
+    distance, lies from the true centre), for asymmetric objects the median rotation error (degrees) and the
+    share beyond 90 degrees (the object's orientation mistaken), and ``within_0_1d``: the shares of the found
+    whose error in one part of the pose alone is within 0.1 d (``diameter_m``), the other parts taken from the
+    truth: ``distance`` (|estimated - true distance|), ``aside`` (the lateral error) and ``rotation`` (ADD, or
+    ADD-S when ``symmetric``, of the estimated rotation at the true position, over ``points`` [N, 3] m). An
+    instance within 0.1 d needs all three; the three shares say which part loses the recall. Medians and shares
+    are None where nothing was found."""
     found = [m for m in matches if m.T_est is not None]
     if not found:
         return {"found": 0, "distance_ratio_median": None, "lateral_error_m_median": None,
-                "rotation_error_deg_median": None, "rotation_over_90deg": None}
+                "rotation_error_deg_median": None, "rotation_over_90deg": None,
+                "within_0_1d": {"distance": None, "aside": None, "rotation": None}}
     t_est = np.array([m.T_est[:3, 3] for m in found])
     t_gt = np.array([m.T_gt[:3, 3] for m in found])
     ratio = np.linalg.norm(t_est, axis=1) / np.linalg.norm(t_gt, axis=1)
     towards = t_est / ratio[:, None]  # the estimate's centre moved along its own ray to the true distance
     lateral = np.linalg.norm(towards - t_gt, axis=1)
+    turned = [np.vstack([np.hstack([m.T_est[:3, :3], m.T_gt[:3, 3:]]), [0, 0, 0, 1]]) for m in found]
+    rotation = np.array([(adds_error if symmetric else add_error)(points, T, m.T_gt) for T, m in zip(turned, found)])
+    bound = 0.1 * diameter_m
     out = {"found": len(found), "distance_ratio_median": float(np.median(ratio)),
            "lateral_error_m_median": float(np.median(lateral)), "rotation_error_deg_median": None,
-           "rotation_over_90deg": None}
+           "rotation_over_90deg": None,
+           "within_0_1d": {"distance": float((np.abs(ratio - 1) * np.linalg.norm(t_gt, axis=1) < bound).mean()),
+                           "aside": float((lateral < bound).mean()), "rotation": float((rotation < bound).mean())}}
     if not symmetric:
         cos = [(np.trace(m.T_est[:3, :3].T @ m.T_gt[:3, :3]) - 1) / 2 for m in found]
         angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
@@ -193,7 +204,9 @@ def describe_found(breakdown: dict) -> str:
     if breakdown["rotation_error_deg_median"] is not None:
         text += (f", turned {breakdown['rotation_error_deg_median']:.0f} deg "
                  f"({breakdown['rotation_over_90deg']:.0%} beyond 90)")
-    return text
+    alone = breakdown["within_0_1d"]
+    return text + (f"; within 0.1 d alone: distance {alone['distance']:.0%}, aside {alone['aside']:.0%}, "
+                   f"rotation {alone['rotation']:.0%}")
 
 
 def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibility: float = 0.1,
@@ -282,7 +295,7 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
               "false_positives_per_image": false_positives / len(frames) if frames else 0.0,
               "min_visibility": min_visibility, "min_score": min_score, "rgb_refined": refine_rgb,
               "result": summary(adds if symmetric else add, diameter), "ADD": summary(add, diameter),
-              "ADD-S": summary(adds, diameter), "found_poses": pose_breakdown(matches, symmetric),
+              "ADD-S": summary(adds, diameter), "found_poses": pose_breakdown(matches, symmetric, points, diameter),
               "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
                                 "add_m": m.add_m if np.isfinite(m.add_m) else None,
                                 "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}

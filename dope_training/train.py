@@ -299,12 +299,14 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
             print("note: no ImageNet VGG19 weights found (--vgg19 PATH or the torch hub cache): trunk from scratch")
     if state is None and architecture.trunk == "lite0":
         load_pretrained(model.features)
+    if cfg.frozen_blocks:
+        model.features.freeze(cfg.frozen_blocks)
     check_memory(memory_estimate(architecture, cfg.size, cfg.size, cfg.batch_size, training=True), device,
                  f"training on {cfg.size} px crops in batches of {cfg.batch_size}")
     # channels-last tensors: oneDNN's convolutions (CPU) and cuDNN's under AMP skip their layout conversions
     # (1.2x the images/s of a CPU training step, benchmarks/dope.py); the checkpoint's weights load either way
     model.to(device, memory_format=torch.channels_last)
-    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    optimiser = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
     first_epoch, step = 0, 0

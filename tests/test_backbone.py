@@ -66,3 +66,23 @@ def test_pretrained_variant_trains_exports_and_infers(no_downloads, dope_dataset
     beliefs_onnx = DopeModel(onnx_path).maps(image, K)[0]
     beliefs_torch = DopeModel(tmp_path / "run" / "last.pt").maps(image, K)[0]
     np.testing.assert_allclose(beliefs_onnx, beliefs_torch, atol=1e-4)
+
+
+def test_frozen_blocks_keep_imagenets_stem_and_first_blocks_and_train_the_rest(no_downloads, dope_dataset, tmp_path):
+    cfg = TrainConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(tmp_path / "run"), size=64,
+                      batch_size=2, epochs=1, variant="pretrained", frozen_blocks=3, loader_workers=0, device="cpu")
+    train(cfg)
+    state = torch.load(tmp_path / "run" / "last.pt", map_location="cpu", weights_only=True)["model"]
+    source = torch.load(weights_path(), map_location="cpu", weights_only=True)
+    for ours, theirs in (("stem.1.weight", "_conv_stem.weight"), ("stem.2.running_mean", "_bn0.running_mean"),
+                         ("blocks.2.depthwise.1.weight", "_blocks.2._depthwise_conv.weight"),
+                         ("blocks.2.project.2.running_var", "_blocks.2._bn2.running_var")):
+        assert torch.equal(state[f"features.{ours}"], source[theirs]), ours
+    for ours, theirs in (("blocks.3.depthwise.1.weight", "_blocks.3._depthwise_conv.weight"),
+                         ("blocks.3.project.2.running_var", "_blocks.3._bn2.running_var")):
+        assert not torch.equal(state[f"features.{ours}"], source[theirs]), ours
+    trunk = LiteTrunk()
+    trunk.freeze(3)
+    assert not trunk.train().blocks[2].project[2].training and trunk.blocks[3].project[2].training
+    with pytest.raises(ValueError, match="only the pretrained variant"):
+        TrainConfig(data=["d"], object="o", variant="light", frozen_blocks=3)

@@ -292,6 +292,10 @@ def test_recall_at_a_tenth_of_the_diameter_is_bops_strict_threshold():
     assert figures["auc_0_10cm"] == pytest.approx(auc(errors)) and recall(np.array([]), 0.01) == 0.0
 
 
+CUBE = 0.05 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)  # 10 cm cube
+CUBE_DIAMETER = 0.1 * np.sqrt(3)  # 0.1 d = 17.3 mm
+
+
 def test_pose_breakdown_tells_scale_offset_and_orientation_apart():
     truth = _at(0.1, 0.0, 1.0)
     turned = truth.copy()
@@ -303,18 +307,43 @@ def test_pose_breakdown_tells_scale_offset_and_orientation_apart():
     beside[:3, 3] *= np.linalg.norm(truth[:3, 3]) / np.linalg.norm(beside[:3, 3])  # at the true distance
     matches = [Match("0", i, 0, 0.0, 0.0, 0.5, T, truth) for i, T in enumerate((turned, farther, beside))]
     matches.append(Match("0", 3, 0, np.inf, np.inf, None, None, truth))  # a miss does not count
-    b = pose_breakdown(matches, symmetric=False)
+
+    def breakdown(some, symmetric=False):
+        return pose_breakdown(some, symmetric, CUBE, CUBE_DIAMETER)
+
+    b = breakdown(matches)
     assert b["found"] == 3 and b["distance_ratio_median"] == pytest.approx(1.0)
-    assert pose_breakdown(matches[1:2], False)["distance_ratio_median"] == pytest.approx(1.25)
-    assert pose_breakdown(matches[1:2], False)["lateral_error_m_median"] == pytest.approx(0.0, abs=1e-12)
-    assert pose_breakdown(matches[2:3], False)["lateral_error_m_median"] == pytest.approx(0.05, rel=0.01)
+    assert breakdown(matches[1:2])["distance_ratio_median"] == pytest.approx(1.25)
+    assert breakdown(matches[1:2])["lateral_error_m_median"] == pytest.approx(0.0, abs=1e-12)
+    assert breakdown(matches[2:3])["lateral_error_m_median"] == pytest.approx(0.05, rel=0.01)
     assert b["rotation_error_deg_median"] == pytest.approx(0.0) and b["rotation_over_90deg"] == pytest.approx(1 / 3)
-    assert pose_breakdown(matches[:1], False)["rotation_error_deg_median"] == pytest.approx(120.0)
-    assert pose_breakdown(matches, symmetric=True)["rotation_error_deg_median"] is None
-    assert pose_breakdown(matches[3:], False)["found"] == 0
-    assert describe_found(pose_breakdown(matches[:1], False)) == ("found at x1.00 the distance, 0 mm aside, "
-                                                                  "turned 120 deg (100% beyond 90)")
-    assert describe_found(pose_breakdown(matches[3:], False)) == "none found"
+    assert breakdown(matches[:1])["rotation_error_deg_median"] == pytest.approx(120.0)
+    assert breakdown(matches, symmetric=True)["rotation_error_deg_median"] is None
+    assert breakdown(matches[3:])["found"] == 0
+    # each estimate is wrong in one part only: each part alone is within 0.1 d for the other two
+    assert b["within_0_1d"] == {"distance": pytest.approx(2 / 3), "aside": pytest.approx(2 / 3),
+                                "rotation": pytest.approx(2 / 3)}
+    assert breakdown(matches[1:2])["within_0_1d"] == {"distance": 0.0, "aside": 1.0, "rotation": 1.0}
+    assert breakdown(matches[3:])["within_0_1d"] == {"distance": None, "aside": None, "rotation": None}
+    assert describe_found(breakdown(matches[:1])) == ("found at x1.00 the distance, 0 mm aside, turned 120 deg "
+                                                      "(100% beyond 90); within 0.1 d alone: distance 100%, "
+                                                      "aside 100%, rotation 0%")
+    assert describe_found(breakdown(matches[3:])) == "none found"
+
+
+def test_pose_breakdown_bounds_each_part_at_a_tenth_of_the_diameter():
+    truth = _at(0.0, 0.0, 0.8)
+    distances = [0.8 + 0.9 * 0.1 * CUBE_DIAMETER, 0.8 + 1.1 * 0.1 * CUBE_DIAMETER]  # just inside, just outside
+    along = [np.vstack([np.hstack([truth[:3, :3], [[0], [0], [z]]]), [0, 0, 0, 1]]) for z in distances]
+    b = pose_breakdown([Match("0", i, 0, 0.0, 0.0, 0.5, T, truth) for i, T in enumerate(along)], False, CUBE,
+                       CUBE_DIAMETER)
+    assert b["within_0_1d"]["distance"] == pytest.approx(0.5) and b["within_0_1d"]["aside"] == 1.0
+    # a quarter turn about a face's axis moves every corner by 10 cm (ADD) onto another corner (ADD-S 0)
+    quarter = truth.copy()
+    quarter[:3, :3] = truth[:3, :3] @ Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    one = [Match("0", 0, 0, 0.0, 0.0, 0.5, quarter, truth)]
+    assert pose_breakdown(one, False, CUBE, CUBE_DIAMETER)["within_0_1d"]["rotation"] == 0.0
+    assert pose_breakdown(one, True, CUBE, CUBE_DIAMETER)["within_0_1d"]["rotation"] == 1.0
 
 
 def test_score_threshold_keeps_false_positives_per_image_within_the_bound():
