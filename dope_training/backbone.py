@@ -71,19 +71,22 @@ class LiteTrunk(nn.Module):
         super().__init__()
         self.stem = nn.Sequential(*_conv_bn(3, STEM_CHANNELS, 3, 2))
         self.blocks = nn.Sequential(*(MBConv(*b) for b in BLOCKS))
-        self.frozen = 0
+        self.frozen = 0  # the stem and this many blocks are frozen (0: none, the stem neither)
+
+    def _frozen_modules(self) -> tuple:
+        return (self.stem, *self.blocks[:self.frozen]) if self.frozen else ()
 
     def freeze(self, blocks: int) -> None:
-        """Keep the stem and the first ``blocks`` blocks as they are: no gradients, BatchNorm statistics fixed
-        (those modules stay in eval mode whatever ``train()`` is asked)."""
+        """Keep the stem and the first ``blocks`` blocks as they are (0: nothing): no gradients, BatchNorm
+        statistics fixed (those modules stay in eval mode whatever ``train()`` is asked)."""
         self.frozen = blocks
-        for module in (self.stem, *self.blocks[:blocks]):
+        for module in self._frozen_modules():
             module.requires_grad_(False)
         self.train(self.training)
 
     def train(self, mode: bool = True) -> "LiteTrunk":
         super().train(mode)
-        for module in (self.stem, *self.blocks[:self.frozen]) if self.frozen else ():
+        for module in self._frozen_modules():
             module.eval()
         return self
 

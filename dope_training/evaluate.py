@@ -177,17 +177,22 @@ def pose_breakdown(matches: list[Match], symmetric: bool, points: np.ndarray, di
                 "within_0_1d": {"distance": None, "aside": None, "rotation": None}}
     t_est = np.array([m.T_est[:3, 3] for m in found])
     t_gt = np.array([m.T_gt[:3, 3] for m in found])
-    ratio = np.linalg.norm(t_est, axis=1) / np.linalg.norm(t_gt, axis=1)
+    distance_est, distance_gt = np.linalg.norm(t_est, axis=1), np.linalg.norm(t_gt, axis=1)
+    ratio = distance_est / distance_gt
     towards = t_est / ratio[:, None]  # the estimate's centre moved along its own ray to the true distance
     lateral = np.linalg.norm(towards - t_gt, axis=1)
-    turned = [np.vstack([np.hstack([m.T_est[:3, :3], m.T_gt[:3, 3:]]), [0, 0, 0, 1]]) for m in found]
-    rotation = np.array([(adds_error if symmetric else add_error)(points, T, m.T_gt) for T, m in zip(turned, found)])
+    rotation = []  # ADD(-S) of the estimated rotation at the true position
+    for m in found:
+        turned = m.T_gt.copy()
+        turned[:3, :3] = m.T_est[:3, :3]
+        rotation.append((adds_error if symmetric else add_error)(points, turned, m.T_gt))
     bound = 0.1 * diameter_m
     out = {"found": len(found), "distance_ratio_median": float(np.median(ratio)),
            "lateral_error_m_median": float(np.median(lateral)), "rotation_error_deg_median": None,
            "rotation_over_90deg": None,
-           "within_0_1d": {"distance": float((np.abs(ratio - 1) * np.linalg.norm(t_gt, axis=1) < bound).mean()),
-                           "aside": float((lateral < bound).mean()), "rotation": float((rotation < bound).mean())}}
+           "within_0_1d": {"distance": float((np.abs(distance_est - distance_gt) < bound).mean()),
+                           "aside": float((lateral < bound).mean()),
+                           "rotation": float((np.array(rotation) < bound).mean())}}
     if not symmetric:
         cos = [(np.trace(m.T_est[:3, :3].T @ m.T_gt[:3, :3]) - 1) / 2 for m in found]
         angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
