@@ -190,9 +190,8 @@ def pose_breakdown(matches: list[Match], symmetric: bool, points: np.ndarray, di
     out = {"found": len(found), "distance_ratio_median": float(np.median(ratio)),
            "lateral_error_m_median": float(np.median(lateral)), "rotation_error_deg_median": None,
            "rotation_over_90deg": None,
-           "within_0_1d": {"distance": float((np.abs(distance_est - distance_gt) < bound).mean()),
-                           "aside": float((lateral < bound).mean()),
-                           "rotation": float((np.array(rotation) < bound).mean())}}
+           "within_0_1d": {"distance": recall(np.abs(distance_est - distance_gt), bound),
+                           "aside": recall(lateral, bound), "rotation": recall(rotation, bound)}}
     if not symmetric:
         cos = [(np.trace(m.T_est[:3, :3].T @ m.T_gt[:3, :3]) - 1) / 2 for m in found]
         angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
