@@ -16,6 +16,11 @@ from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.surface_splats import surface_splats
 
 DEFAULT_SPACING = 0.002  # metres between neighbouring splats
+# how far (in spacings) the splats sit inside the surface: a flat Gaussian on a curved or creased surface overhangs
+# its outline, so splats on the surface render 1.2-1.6 % larger than the mesh (LM-O's ape, cat, duck and
+# holepuncher, 2 mm apart, at 150-200 px across); 0.275 spacings in brings all four to within 0.4 % there
+# (benchmarks/silhouette.py), leaving the renderer's half-pixel low-pass (0.5-0.7 % at 50-70 px across)
+SILHOUETTE_INSET = 0.275
 
 
 MAX_SPLATS = 2_000_000  # a mesh import's splat budget (~1 GB while building); a finer spacing is refused
@@ -82,7 +87,9 @@ def mesh_to_splats(mesh: trimesh.Trimesh, rng: np.random.Generator, spacing: flo
                    sh_degree: int = 0, opacity: float = 0.95, label: int = 0) -> SplatCloud:
     """Cover ``mesh`` with flat Gaussians about ``spacing`` metres apart, coloured from its surface.
 
-    Samples are area-uniform; each Gaussian lies in its face's plane (thin along the face normal).
+    Samples are area-uniform; each Gaussian lies in its face's plane (thin along the face normal), its centre
+    ``SILHOUETTE_INSET * spacing`` behind the surface (along the face normal, which must point outwards) so
+    that the splats render the mesh's outline rather than overhang it.
     """
     if not (np.isfinite(spacing) and spacing > 0):
         raise PegasusError(f"--spacing must be a positive number of metres, got {spacing}")
@@ -92,8 +99,10 @@ def mesh_to_splats(mesh: trimesh.Trimesh, rng: np.random.Generator, spacing: flo
                            f"(at most {MAX_SPLATS:,}): use --spacing {np.sqrt(mesh.area / MAX_SPLATS):.2g} or more")
     points, faces, bary = _sample_surface(mesh, count, rng)
     normals = np.asarray(mesh.face_normals)[faces]
+    if mesh.is_watertight and mesh.volume < 0:  # wound inside out: the normals point in
+        normals = -normals
     colors = np.clip(surface_colors(mesh, faces, bary), 0.0, 1.0)
-    return surface_splats(points, normals, colors, spacing, rng, sh_degree=sh_degree, view_dependence=0.0,
+    return surface_splats(points - SILHOUETTE_INSET * spacing * normals, normals, colors, spacing, rng, sh_degree=sh_degree, view_dependence=0.0,
                           opacity=opacity, label=label)
 
 
