@@ -3,11 +3,11 @@
 
 Usage: python benchmarks/silhouette.py MESH [--scale 0.001] [--spacing 0.002] [--views 6]
 
-The mesh is covered with splats as ``pegasus assets import-mesh`` covers it (``mesh_to_splats``) and seen from
-``--views`` random directions 0.6 m away by a 640x480 camera (fx 572 px) scaled x0.5, x1 and x2. The mesh's own
-silhouette is each pixel's covered share (its triangles filled at 8x the resolution and averaged), taken where
-it is at least half, so that no pixel convention biases the reference. The ratio is sqrt(splat pixels / mesh
-pixels): the factor by which an object rendered from splats looks larger than it is, which a network trained on
+The mesh is covered with splats as ``pegasus assets import-mesh`` covers an object (``mesh_to_splats``, inset)
+and seen from ``--views`` random directions 0.6 m away by a 640x480 camera (fx 572 px) scaled x0.5, x1 and x2.
+The mesh's own silhouette is each pixel's covered share (its triangles filled at 8x the resolution and averaged),
+taken where it is at least half, so that no pixel convention biases the reference. The ratio is sqrt(splat pixels
+/ mesh pixels): the factor by which an object rendered from splats looks larger than it is, which a network trained on
 the renders reads as that much nearer.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 
 from pegasus_gen.geometry.cameras import look_at
 from pegasus_gen.render.renderer import render
-from pegasus_gen.splats.from_mesh import DEFAULT_SPACING, load_mesh, mesh_to_splats
+from pegasus_gen.splats.from_mesh import DEFAULT_SPACING, SILHOUETTE_INSET, load_mesh, mesh_to_splats
 
 SUPERSAMPLE = 8
 
@@ -52,7 +52,7 @@ def main() -> None:
     args = parser.parse_args()
     mesh = load_mesh(args.mesh)
     mesh.apply_scale(args.scale)
-    splats = mesh_to_splats(mesh, np.random.default_rng(1), spacing=args.spacing)
+    splats = mesh_to_splats(mesh, np.random.default_rng(1), spacing=args.spacing, inset=SILHOUETTE_INSET)
     rng, centre = np.random.default_rng(0), mesh.bounds.mean(axis=0)
     views = []
     for _ in range(args.views):

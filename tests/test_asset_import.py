@@ -10,7 +10,7 @@ from pegasus_gen.assets.importers import import_mesh, import_splat
 from pegasus_gen.assets.library import AssetLibrary
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.cloud import concatenate
-from pegasus_gen.splats.from_mesh import mesh_to_splats
+from pegasus_gen.splats.from_mesh import DEFAULT_SPACING, SILHOUETTE_INSET, mesh_to_splats
 from pegasus_gen.splats.ply import write_ply
 from pegasus_gen.splats.procedural import plane, wood_texture
 
@@ -62,6 +62,17 @@ def test_a_fine_imported_model_collides_as_a_closed_decimated_copy_and_stays_the
     assert asset.mesh.is_watertight and abs(asset.mesh.volume / sphere.volume * 1e9 - 1) < 0.02
     assert len(asset.surface.faces) >= len(sphere.faces)  # the labels' model keeps every triangle
     assert np.allclose(asset.surface.vertices.mean(0), 0, atol=1e-3)
+
+
+def test_an_objects_splats_sit_inside_its_surface_an_environments_on_it(tmp_path):
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=40.0)  # mm
+    sphere.export(tmp_path / "ball.ply")
+    lib = AssetLibrary(tmp_path / "lib")
+    ball = import_mesh(tmp_path / "ball.ply", "ball", "object", lib, obj_id=4, scale=0.001)
+    room = import_mesh(tmp_path / "ball.ply", "room", "environment", lib, scale=0.001)
+    depth_in = [0.04 - np.linalg.norm(a.splats.means - a.mesh.centroid, axis=1) for a in (ball, room)]
+    assert np.median(depth_in[0]) == pytest.approx(SILHOUETTE_INSET * DEFAULT_SPACING, abs=1e-4)
+    assert abs(np.median(depth_in[1])) < 1e-4  # (the faceted sphere lies up to 0.05 mm inside the round one)
 
 
 def test_object_splat_import_builds_a_collision_mesh(tmp_path):

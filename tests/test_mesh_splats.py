@@ -9,7 +9,7 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.renderer import render
 from pegasus_gen.render.silhouette import mesh_silhouette
-from pegasus_gen.splats.from_mesh import load_mesh, mesh_to_splats
+from pegasus_gen.splats.from_mesh import SILHOUETTE_INSET, load_mesh, mesh_to_splats
 from pegasus_gen.splats.sh import C0
 
 
@@ -82,7 +82,7 @@ def test_antialiased_splats_render_the_mesh_size_at_a_network_scale(shape):
     # render 1.9-2.7 % larger (tangent discs overhang the curved outline), inset 0.2-0.7 % (over views: +-0.3 %)
     mesh = {"capsule": lambda: trimesh.creation.capsule(0.06, 0.02),
             "torus": lambda: trimesh.creation.torus(0.035, 0.012)}[shape]()
-    cloud = mesh_to_splats(mesh, np.random.default_rng(1), spacing=0.002)
+    cloud = mesh_to_splats(mesh, np.random.default_rng(1), spacing=0.002, inset=SILHOUETTE_INSET)
     w, h, f, s = 448, 336, 400.0, 8
     K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]])
     K_fine = np.diag([s, s, 1.0]) @ K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]])

@@ -21,7 +21,7 @@ from pegasus_gen.assets.library import Asset, AssetLibrary, AssetManifest, DropR
 from pegasus_gen.assets.surface import mesh_surface, splat_surface
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.splats.cloud import SplatCloud, is_rigid
-from pegasus_gen.splats.from_mesh import DEFAULT_SPACING, load_mesh, mesh_to_splats
+from pegasus_gen.splats.from_mesh import DEFAULT_SPACING, SILHOUETTE_INSET, load_mesh, mesh_to_splats
 from pegasus_gen.splats.ply import read_ply
 
 
@@ -154,14 +154,14 @@ def import_mesh(path: str | os.PathLike, name: str, kind: str, library: AssetLib
                 rng: np.random.Generator | None = None, params: MeshParams = MeshParams(), overwrite: bool = False,
                 **fields) -> Asset:
     """A mesh file (OBJ + texture, PLY, ...) as an asset, scaled to metres and moved by the optional rigid
-    ``transform``; its splats are sampled from its surface."""
+    ``transform``; its splats are sampled from its surface (an object's inside it: ``SILHOUETTE_INSET``)."""
     check_new_asset(library, name, kind, obj_id, overwrite, **fields)
     T = _check_placement(scale, transform)
     rng = rng or np.random.default_rng(0)
     mesh = load_mesh(Path(path))
     mesh.apply_scale(scale)
     mesh.apply_transform(T)
-    cloud = mesh_to_splats(mesh, rng, spacing=spacing)
+    cloud = mesh_to_splats(mesh, rng, spacing=spacing, inset=SILHOUETTE_INSET if kind == "object" else 0.0)
     collision = mesh.copy()
     collision.merge_vertices(merge_tex=True, merge_norm=True)  # OBJ/STL seams split vertices
     surface = mesh_surface(mesh) if kind == "object" else None

@@ -16,10 +16,10 @@ from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.surface_splats import surface_splats
 
 DEFAULT_SPACING = 0.002  # metres between neighbouring splats
-# how far (in spacings) the splats sit inside the surface: a flat Gaussian on a curved or creased surface overhangs
-# its outline, so splats on the surface render 1.2-1.6 % larger than the mesh (LM-O's ape, cat, duck and
-# holepuncher, 2 mm apart, at 150-200 px across); 0.275 spacings in brings all four to within 0.4 % there
-# (benchmarks/silhouette.py), leaving the renderer's half-pixel low-pass (0.5-0.7 % at 50-70 px across)
+# how far (in spacings) an object's splats sit inside its surface (``import-mesh`` of an object): a flat Gaussian on
+# a curved or creased surface overhangs its outline, so splats on the surface render 1.2-1.6 % larger than the mesh
+# (LM-O's ape, cat, duck and holepuncher, 2 mm apart, at 150-200 px across); 0.275 spacings in brings all four to
+# within 0.4 % there (benchmarks/silhouette.py), leaving the renderer's half-pixel low-pass (0.5-0.7 % at 50-70 px)
 SILHOUETTE_INSET = 0.275
 
 
@@ -84,12 +84,12 @@ def surface_colors(mesh: trimesh.Trimesh, faces: np.ndarray, bary: np.ndarray) -
 
 
 def mesh_to_splats(mesh: trimesh.Trimesh, rng: np.random.Generator, spacing: float = DEFAULT_SPACING,
-                   sh_degree: int = 0, opacity: float = 0.95, label: int = 0) -> SplatCloud:
+                   sh_degree: int = 0, opacity: float = 0.95, label: int = 0, inset: float = 0.0) -> SplatCloud:
     """Cover ``mesh`` with flat Gaussians about ``spacing`` metres apart, coloured from its surface.
 
     Samples are area-uniform; each Gaussian lies in its face's plane (thin along the face normal), its centre
-    ``SILHOUETTE_INSET * spacing`` behind the surface (along the face normal, which must point outwards) so
-    that the splats render the mesh's outline rather than overhang it.
+    ``inset * spacing`` behind the surface (along the face normal, which must point outwards; ``SILHOUETTE_INSET``
+    makes the splats render the mesh's outline rather than overhang it).
     """
     if not (np.isfinite(spacing) and spacing > 0):
         raise PegasusError(f"--spacing must be a positive number of metres, got {spacing}")
@@ -102,8 +102,8 @@ def mesh_to_splats(mesh: trimesh.Trimesh, rng: np.random.Generator, spacing: flo
     if mesh.is_watertight and mesh.volume < 0:  # wound inside out: the normals point in
         normals = -normals
     colors = np.clip(surface_colors(mesh, faces, bary), 0.0, 1.0)
-    return surface_splats(points - SILHOUETTE_INSET * spacing * normals, normals, colors, spacing, rng, sh_degree=sh_degree, view_dependence=0.0,
-                          opacity=opacity, label=label)
+    return surface_splats(points - inset * spacing * normals, normals, colors, spacing, rng, sh_degree=sh_degree,
+                          view_dependence=0.0, opacity=opacity, label=label)
 
 
 def _sample_surface(mesh: trimesh.Trimesh, count: int, rng: np.random.Generator):
