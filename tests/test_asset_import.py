@@ -67,12 +67,16 @@ def test_a_fine_imported_model_collides_as_a_closed_decimated_copy_and_stays_the
 def test_an_objects_splats_sit_inside_its_surface_an_environments_on_it(tmp_path):
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=40.0)  # mm
     sphere.export(tmp_path / "ball.ply")
+    sphere.invert()  # wound inside out: its face normals point in
+    sphere.export(tmp_path / "inverted.ply")
     lib = AssetLibrary(tmp_path / "lib")
     ball = import_mesh(tmp_path / "ball.ply", "ball", "object", lib, obj_id=4, scale=0.001)
+    inverted = import_mesh(tmp_path / "inverted.ply", "inverted", "object", lib, obj_id=5, scale=0.001)
     room = import_mesh(tmp_path / "ball.ply", "room", "environment", lib, scale=0.001)
-    depth_in = [0.04 - np.linalg.norm(a.splats.means - a.mesh.centroid, axis=1) for a in (ball, room)]
-    assert np.median(depth_in[0]) == pytest.approx(SILHOUETTE_INSET * DEFAULT_SPACING, abs=1e-4)
-    assert abs(np.median(depth_in[1])) < 1e-4  # (the faceted sphere lies up to 0.05 mm inside the round one)
+    depth_in = [0.04 - np.linalg.norm(a.splats.means - a.mesh.centroid, axis=1) for a in (ball, inverted, room)]
+    for inside in depth_in[:2]:
+        assert np.median(inside) == pytest.approx(SILHOUETTE_INSET * DEFAULT_SPACING, abs=1e-4)
+    assert abs(np.median(depth_in[2])) < 1e-4  # (the faceted sphere lies up to 0.05 mm inside the round one)
 
 
 def test_object_splat_import_builds_a_collision_mesh(tmp_path):

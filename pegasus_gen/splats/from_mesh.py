@@ -17,7 +17,7 @@ from pegasus_gen.splats.surface_splats import surface_splats
 
 DEFAULT_SPACING = 0.002  # metres between neighbouring splats
 # how far (in spacings) an object's splats sit inside its surface (``import-mesh`` of an object): a flat Gaussian on
-# a curved or creased surface overhangs its outline, so splats on the surface render 1.2-1.6 % larger than the mesh
+# a curved or creased surface overhangs its outline, so splats on the surface render 1.2-1.7 % larger than the mesh
 # (LM-O's ape, cat, duck and holepuncher, 2 mm apart, at 150-200 px across); 0.275 spacings in brings all four to
 # within 0.4 % there (benchmarks/silhouette.py), leaving the renderer's half-pixel low-pass (0.5-0.7 % at 50-70 px)
 SILHOUETTE_INSET = 0.275
