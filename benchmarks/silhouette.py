@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import argparse
 
-import cv2
 import numpy as np
 
 from pegasus_gen.geometry.cameras import look_at
 from pegasus_gen.render.renderer import render
+from pegasus_gen.render.silhouette import mesh_coverage
 from pegasus_gen.splats.from_mesh import DEFAULT_SPACING, SILHOUETTE_INSET, load_mesh, mesh_to_splats
 
 SUPERSAMPLE = 8
@@ -30,17 +30,6 @@ def camera(scale: float) -> tuple[np.ndarray, int, int]:
     K = np.array([[572.0 * scale, 0, 320 * scale + (scale - 1) / 2], [0, 572.0 * scale, 240 * scale + (scale - 1) / 2],
                   [0, 0, 1.0]])
     return K, round(640 * scale), round(480 * scale)
-
-
-def mesh_coverage(vertices: np.ndarray, faces: np.ndarray, T: np.ndarray, scale: float) -> np.ndarray:
-    """[H, W] share of each pixel the mesh (vertices [V, 3] m, faces [F, 3]) covers, seen by T_cam_world [4, 4]."""
-    K, w, h = camera(scale * SUPERSAMPLE)
-    v = vertices @ T[:3, :3].T + T[:3, 3]
-    uv = v[:, :2] / v[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
-    fine = np.zeros((h, w), np.uint8)
-    for tri in np.round(uv[faces] * 16).astype(np.int32):  # one at a time: a list would be filled even-odd
-        cv2.fillConvexPoly(fine, tri, 1, lineType=cv2.LINE_8, shift=4)
-    return fine.reshape(h // SUPERSAMPLE, SUPERSAMPLE, w // SUPERSAMPLE, SUPERSAMPLE).mean(axis=(1, 3))
 
 
 def main() -> None:
@@ -67,7 +56,7 @@ def main() -> None:
         K, w, h = camera(scale)
         sizes, ratios = [], {False: [], True: []}
         for T in views:
-            mesh_px = (mesh_coverage(vertices, faces, T, scale) >= 0.5).sum()
+            mesh_px = (mesh_coverage(vertices, faces, K, T, w, h, SUPERSAMPLE) >= 0.5).sum()
             sizes.append(np.sqrt(mesh_px))
             for antialiased in (False, True):
                 alpha = render(splats, K, T, w, h, device="cpu", antialiased=antialiased).alpha

@@ -23,3 +23,13 @@ def mesh_silhouette(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, T_ca
     for tri in pts:  # one by one: fillPoly on many polygons would XOR their overlaps
         cv2.fillConvexPoly(mask, tri, 255, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
     return mask > 0
+
+
+def mesh_coverage(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, T_cam_world: np.ndarray, width: int,
+                  height: int, supersample: int = 8) -> np.ndarray:
+    """[H, W] share in [0, 1] of each pixel the mesh covers: its silhouette at ``supersample`` times the
+    resolution (same pixel-centre convention), averaged over each pixel's block. Arguments as ``mesh_silhouette``."""
+    s = supersample
+    K_fine = np.diag([s, s, 1.0]) @ K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]])
+    fine = mesh_silhouette(vertices, faces, K_fine, T_cam_world, width * s, height * s)
+    return fine.reshape(height, s, width, s).mean(axis=(1, 3))
