@@ -18,7 +18,8 @@ how large it looks), so that the distance need not come from the spread of the c
 the corners found span too small a cuboid, and PnP puts the object too far away). The branch reads its input
 detached: its loss trains the branch alone and leaves the trunk and the stages as a network without it would
 learn them (attached, it pulled them towards distance and away from the corners: the cat's rotation on its own
-generated frames went from 13 to 57 degrees, docs/TRAINING.md run L).
+generated frames went from 13 to 57 degrees, docs/TRAINING.md run L). ``forward``'s ``distance_grad`` lets a share of
+the head's gradient back into them (training only; the outputs are the same).
 """
 
 from __future__ import annotations
@@ -141,9 +142,12 @@ class DopeNetwork(nn.Module):
         self.register_buffer("mean", torch.tensor(c.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(c.std).view(1, 3, 1, 1), persistent=False)
 
-    def forward(self, image: torch.Tensor, streams: tuple | None = None) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    def forward(self, image: torch.Tensor, streams: tuple | None = None,
+                distance_grad: float = 0.0) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """``streams``: two CUDA streams on which each stage's belief and affinity branches run at once (inference
-        on a large GPU, which one branch's small convolutions leave mostly idle); None: one after the other."""
+        on a large GPU, which one branch's small convolutions leave mostly idle); None: one after the other.
+        ``distance_grad``: the share (0..1) of the distance head's gradient that reaches the stages and the trunk
+        (0: none, the head reads them detached)."""
         features = self.reduce(self.features((image - self.mean) / self.std))
         x, outputs = features, []
         for belief, affinity in zip(self.beliefs, self.affinities):
@@ -151,7 +155,8 @@ class DopeNetwork(nn.Module):
             outputs.append((b, a))
             x = torch.cat([b, a, features], dim=1)
         if self.distance is not None:
-            outputs[-1] = (*outputs[-1], self.distance(x.detach()))
+            head_input = x.detach() if distance_grad == 0 else x.detach() + distance_grad * (x - x.detach())
+            outputs[-1] = (*outputs[-1], self.distance(head_input))
         return outputs
 
 

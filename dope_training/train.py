@@ -361,7 +361,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
                 image, beliefs, affinities, distance, weight = (t.to(device, non_blocking=True) for t in tensors)
                 image = image.contiguous(memory_format=torch.channels_last)
                 with torch.autocast(device.type, dtype=torch.float16, enabled=use_amp):
-                    outputs = net(image)
+                    outputs = net(image, distance_grad=cfg.distance_grad)
                 loss = dope_loss([tuple(t.float() for t in stage) for stage in outputs], beliefs, affinities,
                                  cfg.peak_weight, distance, weight)
                 optimiser.zero_grad(set_to_none=True)

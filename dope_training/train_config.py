@@ -28,6 +28,9 @@ class TrainConfig(BaseModel):
     distance_head: bool = Field(False, description="a branch after the last stage that learns each object's distance "
                                 "from how large it looks; inference then places the object at that distance on the "
                                 "ray through its centroid instead of PnP's")
+    distance_grad: float = Field(0.0, ge=0.0, le=1.0, description="share of the distance head's gradient that reaches "
+                                 "the stages and the trunk (0: the head reads them detached and its loss trains it "
+                                 "alone)")
     batch_norm: Optional[bool] = Field(None, description="BatchNorm after every hidden convolution (default: the "
                                                          "variant's: light yes, full no)")
     size: int = Field(0, ge=0, description="crop size, px (default: full 400, light 320)")

@@ -144,3 +144,28 @@ def test_the_distance_heads_loss_leaves_the_rest_of_the_network_as_it_is():
     assert without.keys() == with_head.keys() - head
     for name, grad in without.items():
         torch.testing.assert_close(with_head[name], grad, rtol=0, atol=0)
+
+
+def test_a_share_of_the_distance_heads_gradient_reaches_the_trunk_and_stages_in_proportion():
+    """With ``distance_grad`` g the gradient of the distance codes on every trunk and stage parameter is g times
+    the one it has with the head fully attached (g = 1), the head's own gradient is the same for every g, and
+    the codes do not depend on g."""
+    from dataclasses import replace
+
+    torch.manual_seed(0)
+    model = DopeNetwork(replace(ModelConfig.of("light"), distance_head=True)).double()
+    images, weight = torch.rand(2, 3, 64, 64, dtype=torch.float64), torch.rand(2, 1, 8, 8, dtype=torch.float64)
+
+    def gradients(share: float) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        model.zero_grad()
+        codes = model(images, distance_grad=share)[-1][2]
+        (codes * weight).sum().backward()
+        return {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}, codes.detach()
+
+    (full, codes_full), (share, codes_share) = gradients(1.0), gradients(0.25)
+    torch.testing.assert_close(codes_share, codes_full, rtol=0, atol=0)
+    rest = [n for n in full if not n.startswith("distance.")]
+    assert full.keys() == share.keys() and rest and all(full[n].abs().sum() > 0 for n in rest)
+    for name in full:
+        expected = full[name] if name.startswith("distance.") else 0.25 * full[name]
+        torch.testing.assert_close(share[name], expected, rtol=1e-9, atol=1e-12)
