@@ -28,7 +28,14 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from dope_training.backgrounds import behind_objects, masks_union, photo_view, warp_alpha
-from dope_training.targets import SIGMA_PX, distance_code, make_distance_targets, make_targets, mapped_focal
+from dope_training.targets import (
+    SIGMA_PX,
+    distance_code,
+    make_distance_targets,
+    make_targets,
+    mapped_focal,
+    off_axis_factor,
+)
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import IMAGE_EXTENSIONS, bop_frames, model_boxes, object_names
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
@@ -248,7 +255,8 @@ def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> 
 
 class DopeDataset(torch.utils.data.Dataset):
     """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [9, S/8, S/8], affinities [16, S/8, S/8], distance
-    [1, S/8, S/8] and its weight [1, S/8, S/8]: ``targets.make_distance_targets`` at the crop's focal length).
+    [1, S/8, S/8] and its weight [1, S/8, S/8]: ``targets.make_distance_targets`` at the crop's focal length; with
+    ``off_axis`` of each instance's depth times ``targets.off_axis_factor`` of its centre's ray in the frame).
 
     Each item draws its augmentation from a generator seeded by (seed, epoch, index), so runs repeat: ``ds[i]``
     is item i of epoch ``ds.epoch``, ``ds[(epoch, i)]`` that of the given epoch (what a sampler hands the loader's
@@ -268,7 +276,8 @@ class DopeDataset(torch.utils.data.Dataset):
 
     def __init__(self, samples: list[Sample], size: int = 400, augment: Augment | None = None, seed: int = 0,
                  stride: int = 8, focal_px: float = 0.0, sigma_px: float = SIGMA_PX, negatives: float = 0.0,
-                 occluders: float = 0.0, backgrounds: float = 0.0, photos: list[np.ndarray] | None = None):
+                 occluders: float = 0.0, backgrounds: float = 0.0, photos: list[np.ndarray] | None = None,
+                 off_axis: bool = False):
         if backgrounds > 0 and not photos:
             raise PegasusError("backgrounds > 0 needs background photos")
         if size % stride:
@@ -276,6 +285,7 @@ class DopeDataset(torch.utils.data.Dataset):
         self.samples, self.size, self.stride, self.seed, self.focal_px = samples, size, stride, seed, focal_px
         self.sigma_px, self.negatives, self.occluders = sigma_px, negatives, occluders
         self.backgrounds, self.photos = backgrounds, photos or []
+        self.off_axis = off_axis
         self.augment = augment or Augment()
         self.epoch = 0
         self._images: list[np.ndarray] | None = None
@@ -361,6 +371,9 @@ class DopeDataset(torch.utils.data.Dataset):
         sample = self.samples[index]
         focal = mapped_focal(sample.K, M[:, :2])  # the crop's, px
         depths = sample.depths if len(sample.depths) == len(keypoints) else np.full(len(keypoints), np.nan)
+        if self.off_axis and len(keypoints):
+            centres = np.array([[*k[8], 1.0] for k in sample.keypoints])
+            depths = depths * off_axis_factor((centres @ np.linalg.inv(sample.K).T)[:, :2])
         distance, weight = make_distance_targets(keypoints[:, 8], distance_code(depths, focal), self.size, self.size,
                                                  self.stride, self.sigma_px)
         image = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1).float() / 255.0

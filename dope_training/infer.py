@@ -36,7 +36,7 @@ from dope_training.model import check_memory, config_from_dict, memory_estimate
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
 from dope_training.refine_rgb import RgbRefinement, refine_rgb
-from dope_training.targets import STRIDE, distance_from_code, mapped_focal, read_map
+from dope_training.targets import STRIDE, distance_from_code, mapped_focal, off_axis_factor, read_map
 from pegasus_gen.errors import PegasusError
 
 NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])  # the object's axes, 1 m ahead
@@ -88,6 +88,11 @@ def rgb_refined(poses: list[ObjectPose], min_score: float = 0.0) -> list[ObjectP
     return sorted((p for p in out if p.score >= min_score), key=lambda p: -p.score)
 
 
+def centroid_ray(centroid_px: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None) -> np.ndarray:
+    """[2] normalised image coordinates (x / z, y / z) of the ray through ``centroid_px`` [2] (image px)."""
+    return cv2.undistortPoints(np.asarray(centroid_px, np.float64).reshape(1, 1, 2), K, dist).reshape(2)
+
+
 def on_centroid_ray(T_cam_obj: np.ndarray, points: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
                     dist: np.ndarray | None = None, depth_m: np.ndarray | None = None,
                     z_m: float | None = None) -> np.ndarray:
@@ -98,7 +103,7 @@ def on_centroid_ray(T_cam_obj: np.ndarray, points: np.ndarray, centroid_px: np.n
     ``depth_m`` [H, W] (m, 0 = none) the median depth of the 9x9 px around the centroid plus half the points'
     depth along the optical axis at the PnP rotation (the surface seen there is the object's front: the start
     of depth refinement)."""
-    ray = cv2.undistortPoints(np.asarray(centroid_px, np.float64).reshape(1, 1, 2), K, dist).reshape(2)
+    ray = centroid_ray(centroid_px, K, dist)
     centre = T_cam_obj[:3, :3] @ points[8] + T_cam_obj[:3, 3]
     z = centre[2] if z_m is None else z_m
     if depth_m is not None:
@@ -267,6 +272,8 @@ class DopeModel:
             if T is not None and distance is not None:
                 code = read_map(distance, det.keypoints[8], STRIDE)
                 z = float(distance_from_code(code, mapped_focal(K, np.diag([sx, sy]))))
+                if self.config.distance_off_axis:
+                    z /= float(off_axis_factor(centroid_ray(keypoints[8], K, dist)))
                 T = on_centroid_ray(T, self.points, keypoints[8], K, dist, z_m=z)
             pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:

@@ -19,7 +19,8 @@ the corners found span too small a cuboid, and PnP puts the object too far away)
 detached: its loss trains the branch alone and leaves the trunk and the stages as a network without it would
 learn them (attached, it pulled them towards distance and away from the corners: the cat's rotation on its own
 generated frames went from 13 to 57 degrees, docs/TRAINING.md run L). ``forward``'s ``distance_grad`` lets a share of
-the head's gradient back into them (training only; the outputs are the same).
+the head's gradient back into them (training only; the outputs are the same). With ``distance_off_axis`` the
+code is of the depth at which the object would look as large on the optical axis (``targets.off_axis_factor``).
 """
 
 from __future__ import annotations
@@ -59,6 +60,8 @@ class ModelConfig:
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
     distance_head: bool = False  # a branch after the last stage giving distance codes (module docstring)
+    distance_off_axis: bool = False  # its codes are of the depth on the optical axis that looks alike
+    # (``targets.off_axis_factor``); False: of the depth itself, as networks trained before it
 
     @staticmethod
     def of(variant: str) -> "ModelConfig":

@@ -85,6 +85,18 @@ def distance_from_code(code, focal_px: float) -> np.ndarray:
     return np.exp(np.asarray(code, np.float64)) * focal_px / DISTANCE_REF_PX
 
 
+def off_axis_factor(rays_xy) -> np.ndarray:
+    """sqrt(cos theta) [...] of rays [..., 2] (normalised image coordinates x / z, y / z) theta off the optical
+    axis. An object off the axis looks larger than on it at the same depth z: its image is stretched 1 / cos theta
+    along the radial direction (1 along the tangential), so its area grows 1 / cos theta and its size
+    1 / sqrt(cos theta). The distance head of a network with ``ModelConfig.distance_off_axis`` learns the depth at
+    which the object would look as large on the axis, z x this factor: a function of its look alone, which a crop
+    shows without where in the image it came from (a network taught z itself reads objects far off the axis as
+    nearer and those on it as farther)."""
+    rays = np.asarray(rays_xy, np.float64)
+    return (1.0 + np.sum(rays * rays, axis=-1)) ** -0.25
+
+
 def make_distance_targets(centroids: np.ndarray, codes: np.ndarray, height: int, width: int, stride: int = 8,
                           sigma_px: float = SIGMA_PX) -> tuple[np.ndarray, np.ndarray]:
     """The distance head's target and its weight, each [1, H/s, W/s] float32, for an input image of ``height`` x

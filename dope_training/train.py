@@ -292,7 +292,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     architecture = ModelConfig.of(cfg.variant)
     if cfg.batch_norm is not None:
         architecture = replace(architecture, batch_norm=cfg.batch_norm)
-    architecture = replace(architecture, distance_head=cfg.distance_head)
+    architecture = replace(architecture, distance_head=cfg.distance_head,
+                           distance_off_axis=cfg.distance_head and cfg.distance_off_axis)
     model = DopeNetwork(architecture)
     if state is None and cfg.variant == "full":
         if not load_vgg19_weights(model, cfg.vgg19) and rank == 0:
@@ -324,7 +325,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
 
     dataset = DopeDataset(samples, cfg.size, crop_augment(cfg), seed=cfg.seed, focal_px=cfg.focal_px,
                           sigma_px=cfg.sigma_px, negatives=cfg.negatives, occluders=cfg.occluders,
-                          backgrounds=cfg.backgrounds, photos=photos)
+                          backgrounds=cfg.backgrounds, photos=photos, off_axis=architecture.distance_off_axis)
     # decoded once, before the loader processes fork (they share the memory): half the RAM at most (7,200 frames at
     # 608x456 with masks take 8 GB; read from disk, the CPU step ran at 46 crops/s instead of 61)
     if not dataset.preload(memory_limit(torch.device("cpu")) // (2 * world)) and rank == 0:

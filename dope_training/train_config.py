@@ -28,6 +28,10 @@ class TrainConfig(BaseModel):
     distance_head: bool = Field(False, description="a branch after the last stage that learns each object's distance "
                                 "from how large it looks; inference then places the object at that distance on the "
                                 "ray through its centroid instead of PnP's")
+    distance_off_axis: bool = Field(True, description="the distance head's off-axis correction: it learns the depth "
+                                    "at which the object would look as large on the optical axis, which its look "
+                                    "alone tells (an object off the axis looks larger at the same depth); off: the "
+                                    "depth itself")
     distance_grad: float = Field(0.0, ge=0.0, le=1.0, description="share of the distance head's gradient that reaches "
                                  "the stages and the trunk (0: the head reads them detached and its loss trains it "
                                  "alone)")

@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 from scipy.stats import norm
 from skimage import color
@@ -28,6 +29,7 @@ from dope_training.targets import (
     distance_code,
     distance_from_code,
     make_targets,
+    off_axis_factor,
     read_map,
 )
 from pegasus_gen.dataset.config import load_config
@@ -304,6 +306,38 @@ def test_distance_targets_give_back_each_instances_depth_at_any_crop_scale(tmp_p
                 assert distance_from_code(code[i, j], focal) == pytest.approx(depth, rel=1e-5)
     assert distance_from_code(distance_code(0.8, 450.0), 450.0) == pytest.approx(0.8)
     assert distance_code(0.8, 900.0) == pytest.approx(distance_code(0.4, 450.0))  # twice the focal: looks as near
+    # off_axis: the codes are of each depth times the factor of its centre's ray in the frame, not the crop's
+    data = DopeDataset([sample], size=128, focal_px=400.0, off_axis=True)
+    factors = [off_axis_factor(((x - 320) / 500, (y - 240) / 520)) for x, y in ((300.0, 230.0), (340.0, 250.0))]
+    for epoch in range(6):
+        data.epoch = epoch
+        _, moved, M = data.item(0)
+        *_, code, weight = (t.numpy()[0] for t in data[0])
+        focal = np.sqrt(K[0, 0] * K[1, 1]) * np.hypot(*M[:, 0])
+        for (x, y), depth, factor in zip(moved[:, 8], (0.6, 1.1), factors):
+            if 8 <= x < 120 and 8 <= y < 120 and weight[int(y // 8), int(x // 8)] > 0.3:
+                assert distance_from_code(code[int(y // 8), int(x // 8)], focal) == pytest.approx(depth * factor,
+                                                                                                 rel=1e-5)
+
+
+@pytest.mark.parametrize("theta_deg, azimuth_deg", [(0, 0), (15, 30), (25, 200), (35, 290)])
+def test_the_off_axis_factor_makes_a_ball_that_looks_as_large_read_as_far(theta_deg, azimuth_deg):
+    # A ball 2 cm across whose centre lies theta off the optical axis projects to an ellipse; at depth
+    # z = 0.9 m / off_axis_factor its image is as large (area) as the same ball's on the axis at 0.9 m, while at
+    # z = 0.9 m itself it is 1 / cos(theta) as large. The images are measured by projecting the ball's points
+    # (pinhole, f 600 px) and taking their convex hull.
+    def image_area(centre):
+        d = np.random.default_rng(0).normal(size=(20000, 3))
+        points = centre + 0.01 * d / np.linalg.norm(d, axis=1, keepdims=True)
+        return ConvexHull(600 * points[:, :2] / points[:, 2:]).volume
+    t, a = np.radians(theta_deg), np.radians(azimuth_deg)
+    ray = np.tan(t) * np.array([np.cos(a), np.sin(a)])
+    assert float(off_axis_factor(ray)) == pytest.approx(np.sqrt(np.cos(t)))
+    on_axis = image_area(np.array([0.0, 0.0, 0.9]))
+    at_factor = image_area(np.r_[ray, 1.0] * 0.9 / off_axis_factor(ray))
+    at_same_depth = image_area(np.r_[ray, 1.0] * 0.9)
+    assert at_factor / on_axis == pytest.approx(1.0, abs=2e-3)
+    assert at_same_depth / on_axis == pytest.approx(1 / np.cos(t), abs=2e-3)
 
 
 def test_a_distance_map_is_read_between_the_cell_centres():

@@ -35,7 +35,7 @@ from dope_training.evaluate import (
 from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, on_centroid_ray
 from dope_training.model import build_model
-from dope_training.targets import distance_code
+from dope_training.targets import distance_code, off_axis_factor
 from dope_training.train import ShardSampler, TrainConfig, crop_augment, loader_workers, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
@@ -117,7 +117,9 @@ def test_a_distance_head_places_each_pose_on_its_centroids_ray_at_the_distance_i
                                                                                          tmp_path):
     # The overfitted network with a distance head added whose map reads 1.2 m everywhere (its last convolution
     # zero, its bias that distance's code at the network input's focal length): every pose keeps PnP's rotation
-    # and lands at 1.2 m on the ray through its detected centroid, through ONNX as through torch.
+    # and lands at 1.2 m on the ray through its detected centroid, through ONNX as through torch; a network whose
+    # codes are of the depth that looks alike on the optical axis (distance_off_axis) puts it at 1.2 m / the
+    # off-axis factor of that ray.
     state = load_checkpoint(overfit_dope / "last.pt")
     state["model_config"]["distance_head"] = True
     model = build_model(state["model_config"])
@@ -152,6 +154,17 @@ def test_a_distance_head_places_each_pose_on_its_centroids_ray_at_the_distance_i
             np.testing.assert_allclose(centre / centre[2], ray / ray[2], atol=1e-6)
         unused = estimates(DopeModel(path, use_distance_head=False))
         assert len(unused) == len(plain) and all(np.abs(a.T - b.T).max() < 1e-3 for a, b in zip(unused, plain))
+    head = load_checkpoint(tmp_path / "head.pt")
+    torch.save({**head, "model_config": {**head["model_config"], "distance_off_axis": True}}, tmp_path / "off_axis.pt")
+    for path in (tmp_path / "off_axis.pt", export_checkpoint(tmp_path / "off_axis.pt", tmp_path / "off_axis.onnx")[0]):
+        model = DopeModel(path)
+        placed = estimates(model)
+        assert len(placed) == len(plain)
+        for a in placed:
+            centre = a.T[:3, :3] @ model.points[8] + a.T[:3, 3]
+            ray = np.linalg.inv(K) @ [*a.keypoints[8], 1.0]
+            assert centre[2] == pytest.approx(1.2 / off_axis_factor(ray[:2]), rel=1e-4)
+            assert abs(centre[2] - 1.2) > 1e-4  # the centroids lie off the axis here
 
 
 def test_resumed_training_continues_the_loss_curve_exactly(dope_dataset, tmp_path):
