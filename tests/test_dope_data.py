@@ -285,39 +285,31 @@ def test_canonical_labels_of_a_symmetric_object_depend_only_on_what_the_camera_s
             assert towards @ reference / np.linalg.norm(towards) / np.linalg.norm(reference) > 1 - 1e-9
 
 
-def test_distance_targets_give_back_each_instances_depth_at_any_crop_scale(tmp_path):
+@pytest.mark.parametrize("off_axis", [False, True])
+def test_distance_targets_give_back_each_instances_depth_at_any_crop_scale(tmp_path, off_axis):
     # One camera (fx 500, fy 520) sees two instances at 0.6 and 1.1 m; every augmented crop (random scale and
     # turn) labels the cells at each centroid with a code that, read at the crop's own focal length (the
-    # camera's times the crop's scale, taken from the length of M's first column), gives that depth back.
+    # camera's times the crop's scale, taken from the length of M's first column), gives that depth back; with
+    # off_axis, that depth times the off-axis factor of the instance's centre's ray in the frame (not the crop's).
     K = np.array([[500.0, 0, 320], [0, 520.0, 240], [0, 0, 1]])
     cv2.imwrite(str(tmp_path / "im.png"), np.zeros((480, 640, 3), np.uint8))
-    near, far = (np.array([[x, y]] * 9, np.float64) for x, y in ((300.0, 230.0), (340.0, 250.0)))
+    centres = ((300.0, 230.0), (340.0, 250.0))
+    near, far = (np.array([[x, y]] * 9, np.float64) for x, y in centres)
     sample = Sample(tmp_path / "im.png", K, [near, far], [1, 1], [1.0, 1.0], [0.6, 1.1])
-    data = DopeDataset([sample], size=128, focal_px=400.0)
-    for epoch in range(6):
-        data.epoch = epoch
-        _, moved, M = data.item(0)
-        *_, code, weight = (t.numpy()[0] for t in data[0])
-        focal = np.sqrt(K[0, 0] * K[1, 1]) * np.hypot(*M[:, 0])
-        for (x, y), depth in zip(moved[:, 8], (0.6, 1.1)):
-            if 8 <= x < 120 and 8 <= y < 120:
-                i, j = int(y // 8), int(x // 8)
-                assert weight[i, j] > 0.3
-                assert distance_from_code(code[i, j], focal) == pytest.approx(depth, rel=1e-5)
-    assert distance_from_code(distance_code(0.8, 450.0), 450.0) == pytest.approx(0.8)
-    assert distance_code(0.8, 900.0) == pytest.approx(distance_code(0.4, 450.0))  # twice the focal: looks as near
-    # off_axis: the codes are of each depth times the factor of its centre's ray in the frame, not the crop's
-    data = DopeDataset([sample], size=128, focal_px=400.0, off_axis=True)
-    factors = [off_axis_factor(((x - 320) / 500, (y - 240) / 520)) for x, y in ((300.0, 230.0), (340.0, 250.0))]
+    data = DopeDataset([sample], size=128, focal_px=400.0, off_axis=off_axis)
+    factors = [off_axis_factor(((x - 320) / 500, (y - 240) / 520)) if off_axis else 1.0 for x, y in centres]
     for epoch in range(6):
         data.epoch = epoch
         _, moved, M = data.item(0)
         *_, code, weight = (t.numpy()[0] for t in data[0])
         focal = np.sqrt(K[0, 0] * K[1, 1]) * np.hypot(*M[:, 0])
         for (x, y), depth, factor in zip(moved[:, 8], (0.6, 1.1), factors):
-            if 8 <= x < 120 and 8 <= y < 120 and weight[int(y // 8), int(x // 8)] > 0.3:
-                assert distance_from_code(code[int(y // 8), int(x // 8)], focal) == pytest.approx(depth * factor,
-                                                                                                 rel=1e-5)
+            if 8 <= x < 120 and 8 <= y < 120:
+                i, j = int(y // 8), int(x // 8)
+                assert weight[i, j] > 0.3
+                assert distance_from_code(code[i, j], focal) == pytest.approx(depth * factor, rel=1e-5)
+    assert distance_from_code(distance_code(0.8, 450.0), 450.0) == pytest.approx(0.8)
+    assert distance_code(0.8, 900.0) == pytest.approx(distance_code(0.4, 450.0))  # twice the focal: looks as near
 
 
 @pytest.mark.parametrize("theta_deg, azimuth_deg", [(0, 0), (15, 30), (25, 200), (35, 290)])
