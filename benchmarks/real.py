@@ -3,7 +3,7 @@ dataset's real photos (DOPE alone).
 
 Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 2400] [--epochs 20]
        [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] [--refine-rgb]
-       [--generate key=value ...] [--train key=value ...] --out OUT
+       [--zoom-epochs 8 | --no-zoom] [--generate key=value ...] [--train key=value ...] --out OUT
 
 What it reads of DIR, and nothing else: ``models/obj_*.ply`` (mm, vertex colour: the objects, and the others as
 clutter) and ``models/models_info.json`` (diameter), the split's ``scene_camera.json`` (the real camera's K) and
@@ -24,9 +24,11 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    top; and a synthetic held-out set (another seed, ``--held-out-frames`` frames of two per scene). A finished
    dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
-   (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed).
-4. Per object: ``pegasus eval`` figures on the synthetic held-out set and on its photo-backed copy
-   (``OUT/held_out_photos``: the same frames with the background photos that training keeps back,
+   (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed), and its zoom network
+   (``dope_training.zoom``: a second, zoomed-in look at each estimate that moves its centre and distance;
+   ``--zoom-epochs`` epochs, ``OUT/runs/obj_ID/zoom.pt``, reused when there; ``--no-zoom``: none).
+4. Per object, with the zoom network: ``pegasus eval`` figures on the synthetic held-out set and on its
+   photo-backed copy (``OUT/held_out_photos``: the same frames with the background photos that training keeps back,
    ``backgrounds.split_photos``, behind their labelled objects: real textures the network never saw), which set
    the detection score (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image and
    keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split with it
@@ -72,6 +74,8 @@ from dope_training.recipe import (
 )
 from dope_training.train import train
 from dope_training.train_config import TrainConfig, parse_options
+from dope_training.zoom_config import ZoomConfig
+from dope_training.zoom_train import train_zoom
 from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.importers import import_mesh
 from pegasus_gen.assets.library import AssetLibrary
@@ -249,6 +253,9 @@ def main() -> int:
     parser.add_argument("--out", required=True)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variant", choices=("light", "pretrained"), default=VARIANT)
+    parser.add_argument("--zoom-epochs", type=int, default=ZoomConfig().epochs, help="the zoom network's epochs")
+    parser.add_argument("--no-zoom", dest="zoom", action="store_false",
+                        help="no zoom network: DOPE's poses as PnP and the distance head place them")
     parser.add_argument("--refine-rgb", action="store_true",
                         help="also score the poses refined against the images (pegasus eval --refine-rgb)")
     parser.add_argument("--generate", nargs="*", default=[], help="generate overrides (key=value) of the data")
@@ -259,10 +266,10 @@ def main() -> int:
         ids = [int(v) for v in args.objects.split(",")]
     except ValueError:
         raise PegasusError(f"--objects {args.objects!r}: comma-separated integer obj_ids expected") from None
-    if (min(args.frames, args.held_out_frames) < FRAMES_PER_SCENE or args.epochs < 1
+    if (min(args.frames, args.held_out_frames) < FRAMES_PER_SCENE or min(args.epochs, args.zoom_epochs) < 1
             or not 0 < args.distance[0] < args.distance[1] < 20):
-        raise PegasusError(f"--frames and --held-out-frames >= {FRAMES_PER_SCENE}, --epochs >= 1 and 0 < near < far "
-                           "<= 20 m expected")
+        raise PegasusError(f"--frames and --held-out-frames >= {FRAMES_PER_SCENE}, --epochs and --zoom-epochs >= 1 "
+                           "and 0 < near < far <= 20 m expected")
     options = parse_options(args.train)
     camera = real_camera(root, args.split)
     models_info = read_json(root / "models" / "models_info.json")
@@ -313,7 +320,14 @@ def main() -> int:
                   resume=started)
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
-        model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto")
+        zoom = run / "zoom.pt" if args.zoom else None
+        if zoom is not None and not zoom.is_file():  # written when its training ends: a file there is finished
+            train_zoom(ZoomConfig(data=[str(data)], object=str(i), out=str(zoom), epochs=args.zoom_epochs,
+                                  background_photos=options.get("background_photos"), device=args.device,
+                                  seed=args.seed))
+        times[f"zoom obj {i}"] = time.monotonic() - t0
+        t0 = time.monotonic()
+        model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto", zoom=zoom)
         rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
         for how in hows:
             where = tuple(out / f"eval{kind}{how}" / f"obj_{i:06d}" for kind in ("_synthetic", "_photo_backed", ""))
@@ -321,7 +335,8 @@ def main() -> int:
                 model, (held_out, backed), root, args.split, args.max_images, where, how == "_rgb")
         times[f"evaluate obj {i}"] = time.monotonic() - t0
         shared = (times["library"] + times["generate"]) / len(ids)
-        rows[i]["minutes"] = round((shared + times[f"train obj {i}"] + times[f"evaluate obj {i}"]) / 60, 1)
+        rows[i]["minutes"] = round((shared + sum(times[f"{step} obj {i}"] for step in ("train", "zoom", "evaluate")))
+                                   / 60, 1)
         refined = [describe('refined', rows[i]['real_rgb'])] if args.refine_rgb else []
         synthetic = [f"synthetic held-out recall {rows[i][f'synthetic{how}']['recall_0_1d']:.3f}, AUC "
                      f"{rows[i][f'synthetic{how}']['auc']:.3f}{' refined' if how else ''}"
@@ -338,7 +353,8 @@ def main() -> int:
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
            "training_camera": cam, "frames": args.frames, "held_out_frames": args.held_out_frames,
-           "epochs": args.epochs, "distance_m": list(args.distance),
+           "epochs": args.epochs, "zoom_epochs": args.zoom_epochs if args.zoom else None,
+           "distance_m": list(args.distance),
            "variant": args.variant, "clutter": clutter, "generate": args.generate, "train": args.train,
            "objects": {str(i): rows[i] for i in ids}, "mean": means["real"],
            "mean_rgb_refined": means.get("real_rgb"), "mean_top_n": means.get("top_n"), "seconds": times,

@@ -14,7 +14,9 @@ through the detected centroid at the depth seen there (``on_centroid_ray``). A c
 cannot solve (too few corners joined it, or they put the object behind the camera) is then not lost: its
 refinement starts on the same ray with the object's own axes (the several-start refinement tries the other
 rotations), and it is kept when the depth confirms it. With the object's mesh instead, each solved pose is
-refined against the RGB image itself (``refine_rgb``: its silhouette fitted to the image's colour edges).
+refined against the RGB image itself (``refine_rgb``: its silhouette fitted to the image's colour edges). With a
+zoom network (``zoom``: a second, zoomed-in look at each estimate that moves its centre and distance), each solved
+pose is moved by it first, before either refinement.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
 from dope_training.refine_rgb import RgbRefinement, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, off_axis_factor, read_map
+from dope_training.zoom import ZoomRefiner
+from dope_training.zoom import load as load_zoom
 from pegasus_gen.errors import PegasusError
 
 NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])  # the object's axes, 1 m ahead
@@ -160,9 +164,11 @@ def _branch_streams(device: torch.device) -> tuple:
 class DopeModel:
     """A trained network ready for images. ``path``: an ``.onnx`` export (onnxruntime) or a ``.pt`` training
     checkpoint (torch); ``device``: cpu, cuda or auto; ``use_distance_head``: place each pose at its distance
-    head's distance (networks that have one), else where PnP puts it."""
+    head's distance (networks that have one), else where PnP puts it; ``zoom``: a zoom network's checkpoint
+    (``pegasus train-zoom``) for the same object, which then moves every solved pose."""
 
-    def __init__(self, path: str | Path, device: str = "cpu", use_distance_head: bool = True):
+    def __init__(self, path: str | Path, device: str = "cpu", use_distance_head: bool = True,
+                 zoom: str | Path | None = None):
         path = Path(path)
         self.use_distance_head = use_distance_head
         if not path.is_file():
@@ -177,6 +183,10 @@ class DopeModel:
         obj = self.object  # surface samples for depth refinement, as arrays once (None: trained without a model)
         self.surface = None if obj.surface_points is None else (np.asarray(obj.surface_points, np.float64),
                                                                 np.asarray(obj.surface_normals, np.float64))
+        self.zoom: ZoomRefiner | None = None if zoom is None else load_zoom(zoom, self.device)
+        if self.zoom is not None and self.zoom.obj_id != obj.obj_id:
+            raise PegasusError(f"{zoom}: a zoom network for obj_id {self.zoom.obj_id} ({self.zoom.name}), the model "
+                               f"{path} finds obj_id {obj.obj_id} ({obj.name})")
 
     def _init_onnx(self, path: Path, device: str) -> None:
         import onnxruntime
@@ -254,12 +264,14 @@ class DopeModel:
         an instance PnP cannot solve is kept (T None) when its refinement from the centroid's ray is accepted.
         With ``mesh`` (the object's vertices [V, 3] in metres, model frame, and faces [F, 3]; best through
         ``refine_rgb.decimated``) and no depth, each pose is also refined against the image (``refine_rgb``;
-        a pinhole camera: no ``dist``)."""
+        a pinhole camera: no ``dist``). With a zoom network, an undistorted image (no ``dist``)."""
         if depth_m is not None and self.surface is None:
             raise PegasusError(f"{self.path}: this model carries no surface points of its object (trained on a "
                                "DOPE/NDDS folder), so it cannot be refined with depth")
         if mesh is not None and (depth_m is not None or dist is not None):
             raise PegasusError("refinement against the RGB image takes an undistorted image without depth")
+        if self.zoom is not None and dist is not None:
+            raise PegasusError("the zoom network takes an undistorted image (no distortion coefficients)")
         beliefs, affinities, distance, (sx, sy) = self.maps(image, K)
         if not self.use_distance_head:
             distance = None
@@ -275,6 +287,8 @@ class DopeModel:
                 if self.config.distance_off_axis:
                     z /= float(off_axis_factor(centroid_ray(keypoints[8], K, dist)))
                 T = on_centroid_ray(T, self.points, keypoints[8], K, dist, z_m=z)
+            if T is not None and self.zoom is not None:
+                T = self.zoom.refine(image, K, T)
             pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:
                 start = on_centroid_ray(NO_PNP_START if T is None else T, self.points, keypoints[8], K, dist, depth_m)

@@ -7,7 +7,8 @@ hand_eye is T_base_cam (camera pose in the robot base frame, 16 numbers row-majo
 hand-eye calibration; basket is the basket floor centre in the base frame. Both are YAML lists of floats:
 write every number with a decimal point (1.0, not 1), as launch_ros reads them as List[float].
 Without a depth camera, refine_rgb:=MESH (the object's mesh in its model frame, mesh_scale:=0.001 for a model in
-mm) use_pose:=refined moves the robot to the poses refined against the image (see inference_node).
+mm) use_pose:=refined moves the robot to the poses refined against the image (see inference_node). zoom:=ZOOM.pt (a
+zoom network of the same object, pegasus train-zoom) moves every pose by its zoomed second look first.
 """
 
 import typing
@@ -43,10 +44,13 @@ def generate_launch_description():
         DeclareLaunchArgument("refine_rgb", default_value="",
                               description="the object's mesh: refine the poses against the image (empty: off)"),
         DeclareLaunchArgument("mesh_scale", default_value="1.0", description="metres per mesh unit"),
+        DeclareLaunchArgument("zoom", default_value="",
+                              description="a zoom network of the object: every pose moved by it (empty: off)"),
         DeclareLaunchArgument("use_pose", default_value="raw", choices=["raw", "refined"]),
         Node(package="pegasus", executable="inference_node", parameters=[{
             "model": arg("model"), "device": "auto", "refine_rgb": ParameterValue(arg("refine_rgb"), value_type=str),
-            "mesh_scale": ParameterValue(arg("mesh_scale"), value_type=float), "use_pose": arg("use_pose")}]),
+            "mesh_scale": ParameterValue(arg("mesh_scale"), value_type=float), "use_pose": arg("use_pose"),
+            "zoom": ParameterValue(arg("zoom"), value_type=str)}]),
         Node(package="pegasus", executable="robot_node", parameters=[{
             "host": arg("host"), "hand_eye": ParameterValue(arg("hand_eye"), value_type=List[float]),
             "basket": ParameterValue(arg("basket"), value_type=List[float]), "execute": arg("execute"),

@@ -13,9 +13,10 @@ its outline's support, when it reaches ``min_score``), ``object_pose`` (what the
 Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives on the ``model`` topic, as
 trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``, ``refine`` (bool: with depth),
 ``refine_rgb`` (the object's mesh, PLY/OBJ in its model frame, ``mesh_scale`` metres per unit: refine against
-the image, ``refine_rgb.refine_rgb``; empty: off), ``use_pose`` (raw | refined), ``max_images`` (> 0: end after
-that many images). Broadcasts on /tf each instance's pose (refined where accepted) as the transform from the
-image's frame to ``<object>_<k>`` (k by score).
+the image, ``refine_rgb.refine_rgb``; empty: off), ``zoom`` (a zoom network of the same object, ``pegasus
+train-zoom``: every pose moved by its zoomed second look first; empty: off), ``use_pose`` (raw | refined),
+``max_images`` (> 0: end after that many images). Broadcasts on /tf each instance's pose (refined where accepted)
+as the transform from the image's frame to ``<object>_<k>`` (k by score).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ PENDING_FRAMES = 4  # images or depth images kept while waiting for their partne
 
 
 PARAMETERS = (("model", ""), ("device", "cpu"), ("min_score", 0.1), ("max_images", 0), ("refine", False),
-              ("refine_rgb", ""), ("mesh_scale", 1.0), ("use_pose", "raw"))
+              ("refine_rgb", ""), ("mesh_scale", 1.0), ("zoom", ""), ("use_pose", "raw"))
 
 
 class InferenceNode(Node):
@@ -50,7 +51,8 @@ class InferenceNode(Node):
             raise PegasusError("inference_node: use_pose refined needs refine true (and a depth topic) or a "
                                "refine_rgb mesh")
         self.mesh = read_mesh(p["refine_rgb"], p["mesh_scale"]) if p["refine_rgb"] else None
-        self.model = DopeModel(model, device=self.device) if model else None
+        self.zoom = p["zoom"] or None
+        self.model = DopeModel(model, device=self.device, zoom=self.zoom) if model else None
         self.create_subscription(msgs.String, "model", self.on_model, latched())
         self.K = None
         self.pose_pub = self.create_publisher(msgs.PoseStamped, "object_pose", 5)
@@ -67,7 +69,7 @@ class InferenceNode(Node):
         self.images = 0
 
     def on_model(self, msg) -> None:
-        self.model = DopeModel(msg.data, device=self.device)
+        self.model = DopeModel(msg.data, device=self.device, zoom=self.zoom)
         self.get_logger().info(f"inference_node: using {msg.data}")
 
     def on_info(self, msg) -> None:

@@ -95,7 +95,9 @@ def test_inference_node_refines_against_the_image_with_the_objects_mesh(dope_dat
     try:
         for overrides, refusal in (({"refine": True, "refine_rgb": mesh}, "choose one"),
                                    ({"use_pose": "refined"}, "refine_rgb mesh"),
-                                   ({"refine_rgb": str(tmp_path / "none.ply")}, "cannot read the mesh")):
+                                   ({"refine_rgb": str(tmp_path / "none.ply")}, "cannot read the mesh"),
+                                   ({"model": str(onnx_path), "zoom": str(tmp_path / "none.pt")},
+                                    "no such zoom checkpoint")):
             with pytest.raises(PegasusError, match=refusal):
                 InferenceNode(parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
     finally:

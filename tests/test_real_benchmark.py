@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from dope_training.checkpoint import load_checkpoint
@@ -69,8 +70,8 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     out = tmp_path / "bench"
     script = str(ROOT / "benchmarks" / "real.py")
     result = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "16",
-                             "--held-out-frames", "8", "--epochs", "1", "--device", "cpu", "--refine-rgb",
-                             "--out", str(out)],
+                             "--held-out-frames", "8", "--epochs", "1", "--zoom-epochs", "1", "--device", "cpu",
+                             "--refine-rgb", "--out", str(out)],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
     refined_line, top_line, last = result.stdout.strip().splitlines()[-3:]
@@ -89,7 +90,10 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     assert top["recall_0_1d"] <= figures["recall_0_1d"] and doc["mean_top_n"]["auc"] == top["auc"]
     seconds = doc["seconds"]  # its minutes: its share of the library and data (one object here), training, scoring
     assert doc["objects"]["1"]["minutes"] == round(sum(seconds[k] for k in ("library", "generate", "train obj 1",
-                                                                             "evaluate obj 1")) / 60, 1)
+                                                                             "zoom obj 1", "evaluate obj 1")) / 60, 1)
+    # the zoom network of the cup, trained on the same data, and the poses scored through it
+    zoom = torch.load(out / "runs" / "obj_000001" / "zoom.pt", weights_only=True)
+    assert zoom["obj_id"] == 1 and zoom["config"]["data"] == [str(out / "data")] and doc["zoom_epochs"] == 1
     # the detection score holds the rule on the held-out frames as rendered and with unseen photos behind them
     held_out = [json.loads((out / f"eval_{kind}" / "obj_000001" / "eval.json").read_text())
                 for kind in ("synthetic", "photo_backed")]

@@ -1,4 +1,5 @@
-"""`pegasus train`, `export`, `infer` and `eval`: DOPE trained, exported to ONNX, run and scored."""
+"""`pegasus train`, `train-zoom`, `export`, `infer` and `eval`: DOPE (and its zoom network) trained, exported to
+ONNX, run and scored."""
 
 from __future__ import annotations
 
@@ -20,6 +21,17 @@ def cmd_train(args) -> int:
     out = train(options.config_from_args(TrainConfig, args), resume=args.resume)
     if int(os.environ.get("RANK", 0)) == 0:  # under torchrun only rank 0 speaks
         print(f"trained: {out}/last.pt    loss curve: {out}/loss.png    export: pegasus export {out}/last.pt")
+    return 0
+
+
+def cmd_train_zoom(args) -> int:
+    from dope_training.zoom_config import ZoomConfig
+    from dope_training.zoom_train import train_zoom
+
+    cfg = options.config_from_args(ZoomConfig, args)
+    _output_file(cfg.out, "--out")
+    out = train_zoom(cfg)
+    print(f"trained: {out}    use: pegasus eval --model MODEL --zoom {out}")
     return 0
 
 
@@ -87,7 +99,7 @@ def cmd_infer(args) -> int:
 
     options.output_folder(args.out)
     _check_camera(args)
-    model = DopeModel(args.model, device=args.device, use_distance_head=args.distance_head)
+    model = DopeModel(args.model, device=args.device, use_distance_head=args.distance_head, zoom=args.zoom)
     image = _read_image(args.image)
     K = _read_K(args, image.shape[1], image.shape[0])
     depth = None
@@ -126,7 +138,7 @@ def cmd_eval(args) -> int:
     options.output_folder(out)
     if args.bop_results:
         _output_file(args.bop_results, "--bop-results")
-    model = DopeModel(args.model, device=args.device, use_distance_head=args.distance_head)
+    model = DopeModel(args.model, device=args.device, use_distance_head=args.distance_head, zoom=args.zoom)
     report = evaluate(model, args.data, args.split, min_visibility=args.min_visibility, max_images=args.max_images,
                       min_score=args.min_score, refine=args.depth, refine_rgb=args.refine_rgb)
     json_path, png, gallery = write_eval_report(report, out)
@@ -158,6 +170,7 @@ def cmd_eval(args) -> int:
 
 def add_commands(sub) -> None:
     from dope_training.train_config import TrainConfig
+    from dope_training.zoom_config import ZoomConfig
 
     p = sub.add_parser("train", help="train DOPE for one object on BOP datasets (or DOPE/NDDS folders)")
     options.add_config_flags(p, TrainConfig, (
@@ -171,6 +184,15 @@ def add_commands(sub) -> None:
         object_size={"metavar": ("X", "Y", "Z")}, symmetry_axis={"metavar": ("X", "Y", "Z")})
     p.add_argument("--resume", action="store_true", help="continue the training in --out (more --epochs)")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("train-zoom", help="train the zoomed second look at each estimate (its centre and distance) "
+                       "for one object on BOP datasets")
+    options.add_config_flags(p, ZoomConfig, (
+        "data", "object", "out", "split", "epochs", "per_instance", "batch_size", "lr", "crop_px", "object_px",
+        "centre_std", "distance_std", "rotation_std_deg", "min_visibility", "backgrounds", "background_photos",
+        "blur_px", "colour_jitter", "hue_deg", "device", "seed"),
+        data={"action": "append", "nargs": None, "help": "BOP dataset root (repeatable)"})
+    p.set_defaults(func=cmd_train_zoom)
 
     p = sub.add_parser("export", help="export a training checkpoint to ONNX and check it against torch")
     p.add_argument("checkpoint")
@@ -187,6 +209,8 @@ def add_commands(sub) -> None:
                        help="lowest detection score kept (geometric mean of the centroid's and corners' beliefs)")
         p.add_argument("--no-distance-head", dest="distance_head", action="store_false",
                        help="place the poses where PnP puts them even when the network has a distance head")
+        p.add_argument("--zoom", metavar="CHECKPOINT", help="a zoom network of the same object (pegasus train-zoom): "
+                       "a second, zoomed-in look at each estimate moves its centre and distance")
     p = sub.choices["infer"]
     p.add_argument("--image", required=True)
     p.add_argument("--K", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="camera intrinsics, px")

@@ -1,0 +1,148 @@
+"""Training the zoomed second look (``dope_training.zoom``) for one object on BOP datasets (``pegasus train-zoom``).
+
+Each visible instance of the object is seen from ``per_instance`` estimates drawn around its true pose (the box
+centre moved aside and along its ray, the rotation turned: the kind of error DOPE makes), and the network learns
+the offsets back to the truth (``zoom.offsets``). The crops are drawn once; every epoch redraws their augmentation:
+a real photograph behind the objects (BOP's visible masks), blur, colour jitter and hue as DOPE's recipe.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from dope_training.backgrounds import (
+    behind_objects,
+    load_photos,
+    masks_union,
+    photo_view,
+    split_photos,
+    warp_alpha,
+)
+from dope_training.data import Augment, jitter_colour, resolve_objects
+from dope_training.refine_rgb import decimated
+from dope_training.zoom import OFFSET_STD, ZoomGeometry, ZoomNet, offsets, save, zoom_input, zoom_tensor
+from dope_training.zoom_config import ZoomConfig
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import bop_frames, model_boxes, models_info, object_names, read_model
+from pegasus_gen.io.images import read_rgb
+
+LOSS_WEIGHTS = (1.0, 1.0, 2.0)  # centre x, y, log distance: the distance is what DOPE gets least right
+
+
+def drawn_estimate(T: np.ndarray, K: np.ndarray, g: ZoomGeometry, cfg: ZoomConfig,
+                   rng: np.random.Generator) -> np.ndarray:
+    """An estimate [4, 4] around the instance at T [4, 4] (m) seen with K [3, 3]: its box centre moved aside by
+    ``cfg.centre_std`` of the diameter's pixels and along its ray by exp(N(0, ``cfg.distance_std``)) (clipped at
+    3 std), turned about the centre by |N(0, ``cfg.rotation_std_deg``)| about a random axis."""
+    p = T[:3, :3] @ g.centre + T[:3, 3]
+    uv = (K @ p)[:2] / p[2] + rng.normal(0, cfg.centre_std, 2) * g.diameter * K[0, 0] / p[2]
+    z = p[2] * np.exp(np.clip(rng.normal(0, cfg.distance_std), -3 * cfg.distance_std, 3 * cfg.distance_std))
+    axis = rng.normal(size=3)
+    turn = Rotation.from_rotvec(axis / np.linalg.norm(axis) * np.radians(abs(rng.normal(0, cfg.rotation_std_deg))))
+    out = np.eye(4)
+    out[:3, :3] = turn.as_matrix() @ T[:3, :3]
+    out[:3, 3] = np.linalg.solve(K, [uv[0], uv[1], 1.0]) * z - out[:3, :3] @ g.centre
+    return out
+
+
+def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float) -> ZoomGeometry:
+    """The ZoomGeometry of ``obj_id`` from a BOP dataset's model and models_info.json."""
+    diameter = models_info(root)[obj_id].diameter
+    if diameter is None:
+        raise PegasusError(f"{root}: models_info.json gives obj_id {obj_id} no diameter")
+    mesh = read_model(root, obj_id)
+    vertices, faces = decimated(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    bbox_min, bbox_size = model_boxes(root)[obj_id]
+    return ZoomGeometry(vertices, faces, bbox_min + bbox_size / 2, diameter, crop_px, object_px)
+
+
+def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfig, rng: np.random.Generator) -> dict:
+    """The drawn crops of every visible instance: crops [N, C, C, 3], silhouettes [N, C, C], the objects' visible
+    masks in the crop [N, C, C] (uint8 coverage x 255, for photo backgrounds) and offsets [N, 3]."""
+    frames = [f for root in roots for f in bop_frames(root / cfg.split)]
+    out = {"crops": [], "silhouettes": [], "objects": [], "offsets": []}
+    for frame in tqdm(frames, desc="zoom crops", unit="img"):
+        mine = [i for i in frame.instances if i.obj_id == obj_id
+                and (1.0 if i.visib_fract is None else i.visib_fract) >= cfg.min_visibility]
+        if not mine:
+            continue
+        image, union = read_rgb(frame.image), masks_union(frame.visible_masks())
+        for inst in mine:
+            for _ in range(cfg.per_instance):
+                T = drawn_estimate(inst.T, frame.K, g, cfg, rng)
+                crop, silhouette, w = zoom_input(image, T, frame.K, g)
+                objects = np.rint(255 * warp_alpha(union, w.A, g.crop_px))
+                out["crops"].append(crop)
+                out["silhouettes"].append(silhouette)
+                out["objects"].append(objects.astype(np.uint8))
+                out["offsets"].append(offsets(inst.T, T, frame.K, g))
+    if not out["crops"]:
+        raise PegasusError(f"{', '.join(map(str, roots))}: no instance of obj_id {obj_id} seen at least "
+                           f"{cfg.min_visibility:g} in {cfg.split}/")
+    return {k: np.stack(v) for k, v in out.items()}
+
+
+def train_zoom(cfg: ZoomConfig) -> Path:
+    """Train the zoom network of ``cfg`` and write its checkpoint to ``cfg.out`` (written when training ends:
+    a file there is a finished run); the path."""
+    out = Path(cfg.out)
+    roots = [Path(d) for d in cfg.data]
+    for root in roots:
+        if not (root / cfg.split).is_dir():
+            raise PegasusError(f"{root}: no {cfg.split}/ folder, so not a BOP dataset to train on")
+    names = object_names(roots[0])
+    obj_id = resolve_objects([cfg.object], model_boxes(roots[0]), names, str(roots[0]))[0]
+    name = next((n for n, k in names.items() if k == obj_id), f"obj_{obj_id:06d}")
+    if cfg.device == "cuda" and not torch.cuda.is_available():
+        raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
+    device = torch.device("cuda" if cfg.device != "cpu" and torch.cuda.is_available() else "cpu")
+    g = object_geometry(roots[0], obj_id, cfg.crop_px, cfg.object_px)
+    rng = np.random.default_rng(cfg.seed)
+    torch.manual_seed(cfg.seed)
+    samples = zoom_samples(roots, obj_id, g, cfg, rng)
+    photos = split_photos(load_photos(cfg.background_photos))[0] if cfg.backgrounds > 0 else []
+    aug = Augment(blur_px=cfg.blur_px, brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
+                  saturation=cfg.colour_jitter, hue_deg=cfg.hue_deg)
+    net = ZoomNet(cfg.crop_px).to(device)
+    n = len(samples["crops"])
+    batches = max(n // cfg.batch_size, 1)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
+    schedule = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.epochs * batches,
+                                                   pct_start=0.05)
+    weights = torch.tensor(LOSS_WEIGHTS, device=device)
+    scale = torch.from_numpy(OFFSET_STD).to(device)
+    started = time.perf_counter()
+    net.train()
+    for epoch in range(cfg.epochs):
+        order = rng.permutation(n)
+        total = 0.0
+        bar = tqdm(range(batches), desc=f"zoom epoch {epoch + 1}/{cfg.epochs}", unit="batch")
+        for b in bar:
+            idx = order[b * cfg.batch_size:(b + 1) * cfg.batch_size]
+            crops = []
+            for i in idx:
+                crop = samples["crops"][i]
+                if photos and rng.uniform() < cfg.backgrounds:
+                    crop = behind_objects(crop, samples["objects"][i] / 255.0, photo_view(photos, cfg.crop_px, rng))
+                crops.append(jitter_colour(crop, rng, aug))
+            x = zoom_tensor(np.stack(crops), samples["silhouettes"][idx]).to(device)
+            y = torch.from_numpy(samples["offsets"][idx]).to(device) / scale
+            loss = (torch.nn.functional.smooth_l1_loss(net(x), y, reduction="none") * weights).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            schedule.step()
+            total += loss.item()
+            bar.set_postfix(loss=f"{total / (b + 1):.4f}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial")
+    save(partial, net.cpu(), g, obj_id, name, {**cfg.model_dump(), "samples": n,
+                                               "minutes": round((time.perf_counter() - started) / 60, 1)})
+    partial.replace(out)
+    return out

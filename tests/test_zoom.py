@@ -1,0 +1,162 @@
+"""The zoomed second look (dope_training.zoom): its crop centres the estimate with the object's diameter
+object_px long, its offsets and the move they give are inverses, the drawn estimates spread as configured, a
+network trained on a few frames brings estimates back, DOPE's poses pass through it with their rotation kept, and
+bad input is refused."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from dope_training.infer import DopeModel
+from dope_training.zoom import ZoomGeometry, load, moved, offsets, zoom_input
+from dope_training.zoom_config import ZoomConfig
+from dope_training.zoom_train import drawn_estimate, train_zoom
+from pegasus_gen.cli.main import main
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import bop_frames
+from pegasus_gen.io.images import read_rgb
+
+K = np.array([[570.0, 0, 320], [0, 575.0, 240], [0, 0, 1]])
+
+
+def _ball(radius: float = 0.05, crop_px: int = 128, object_px: float = 88.0) -> ZoomGeometry:
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    return ZoomGeometry(np.asarray(mesh.vertices), np.asarray(mesh.faces), np.zeros(3), 2 * radius, crop_px,
+                        object_px)
+
+
+def _pose(seed: int, centre=None) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=seed).as_matrix()
+    T[:3, 3] = centre if centre is not None else [rng.uniform(-0.2, 0.2), rng.uniform(-0.15, 0.15),
+                                                   rng.uniform(0.5, 1.3)]
+    return T
+
+
+def test_the_crop_centres_the_estimate_and_the_diameter_spans_object_px():
+    g = _ball()
+    for seed in range(3):
+        T = _pose(seed, centre=[0.0, 0.0, 0.6 + 0.3 * seed])  # on the optical axis: a ball's outline is a circle
+        uv = K[:2, :2] @ (T[:2, 3] / T[2, 3]) + K[:2, 2]
+        ys, xs = np.mgrid[0:480, 0:640]
+        blob = np.exp(-((xs - uv[0]) ** 2 + (ys - uv[1]) ** 2) / (2 * 6.0 ** 2))
+        image = np.repeat(np.rint(255 * blob)[..., None], 3, axis=2).astype(np.uint8)
+        crop, silhouette, _ = zoom_input(image, T, K, g)
+        middle = (g.crop_px - 1) / 2
+        weights = crop[..., 0].astype(float)
+        cy, cx = (np.mgrid[0:g.crop_px, 0:g.crop_px] * weights).reshape(2, -1).sum(1) / weights.sum()
+        assert abs(cx - middle) < 0.1 and abs(cy - middle) < 0.1  # the image's point there lands in the middle
+        cover = silhouette / 255.0
+        sy, sx = (np.mgrid[0:g.crop_px, 0:g.crop_px] * cover).reshape(2, -1).sum(1) / cover.sum()
+        assert abs(sx - middle) < 0.05 and abs(sy - middle) < 0.05
+        # the ball's outline: a circle object_px across at fx's scale (fy 1 % longer stretches it 1 % vertically),
+        # and z^2 / (z^2 - r^2) larger in area as a ball seen from z looks (the filled triangles' edges add 0.4 %)
+        z, r = T[2, 3], g.diameter / 2
+        area = np.pi * (g.object_px / 2) ** 2 * K[1, 1] / K[0, 0] * z ** 2 / (z ** 2 - r ** 2)
+        assert cover.sum() == pytest.approx(area, rel=0.01)
+
+
+def test_offsets_and_the_move_they_give_are_inverse_and_keep_the_rotation():
+    cfg = ZoomConfig(data=["x"], object="1")
+    g = replace(_ball(), centre=np.array([0.01, -0.02, 0.03]))  # the model's box centre off its origin
+    rng = np.random.default_rng(1)
+    for seed in range(20):
+        truth = _pose(seed)
+        estimate = drawn_estimate(truth, K, g, cfg, rng)
+        back = moved(estimate, K, g, offsets(truth, estimate, K, g))  # offsets in float32: a micrometre
+        np.testing.assert_allclose(back[:3, :3] @ g.centre + back[:3, 3], truth[:3, :3] @ g.centre + truth[:3, 3],
+                                   atol=1e-6)
+        np.testing.assert_array_equal(back[:3, :3], estimate[:3, :3])
+        np.testing.assert_allclose(offsets(truth, truth, K, g), 0.0, atol=1e-6)
+
+
+def test_the_drawn_estimates_spread_as_configured():
+    cfg = ZoomConfig(data=["x"], object="1", centre_std=0.03, distance_std=0.05, rotation_std_deg=10.0)
+    g = _ball()
+    rng = np.random.default_rng(2)
+    truths = [_pose(seed) for seed in range(2000)]
+    drawn = [drawn_estimate(T, K, g, cfg, rng) for T in truths]
+    off = np.array([offsets(T, E, K, g) for T, E in zip(truths, drawn)])
+    # the crop's units: the estimate's centre aside as a share of the diameter's pixels, log distance (clipped at 3 std)
+    assert np.std(off[:, :2]) == pytest.approx(cfg.centre_std, rel=0.08)
+    assert np.std(off[:, 2]) == pytest.approx(cfg.distance_std, rel=0.08) and np.abs(off[:, 2]).max() <= 0.15 + 1e-6
+    turns = [np.degrees(Rotation.from_matrix(E[:3, :3] @ T[:3, :3].T).magnitude()) for T, E in zip(truths, drawn)]
+    assert np.median(turns) == pytest.approx(0.674 * cfg.rotation_std_deg, rel=0.08)  # |N(0, std)|'s median
+
+
+@pytest.fixture(scope="module")
+def zoom_run(dope_dataset, tmp_path_factory):
+    """A zoom network for the noodle cups of ``dope_dataset`` (64 px crops), trained 6 epochs on 96 estimates
+    drawn around each of its instances."""
+    out = tmp_path_factory.mktemp("zoom") / "zoom.pt"
+    return train_zoom(ZoomConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(out), epochs=6,
+                                 per_instance=96, crop_px=64, object_px=44.0, rotation_std_deg=5.0, backgrounds=0.0,
+                                 device="cpu", seed=0))
+
+
+def test_a_zoom_network_brings_estimates_back_towards_the_truth(zoom_run, dope_dataset):
+    refiner = load(zoom_run)
+    cfg = ZoomConfig(data=["x"], object="1", rotation_std_deg=5.0)
+    rng = np.random.default_rng(7)  # fresh estimates, not the ones it was trained on
+    before, after = [], []
+    for frame in bop_frames(dope_dataset / "train_pbr"):
+        image = read_rgb(frame.image)
+        for inst in (i for i in frame.instances if i.obj_id == refiner.obj_id and i.visib_fract > 0.5):
+            for _ in range(8):
+                estimate = drawn_estimate(inst.T, frame.K, refiner.geometry, cfg, rng)
+                before.append(np.abs(offsets(inst.T, estimate, frame.K, refiner.geometry)))
+                after.append(np.abs(offsets(inst.T, refiner.refine(image, frame.K, estimate), frame.K,
+                                            refiner.geometry)))
+    before, after = np.median(before, axis=0), np.median(after, axis=0)
+    assert (after < 0.6 * before).all(), (before, after)
+
+
+def test_dope_poses_pass_through_the_zoom_network_with_their_rotation_kept(overfit_dope, zoom_run, dope_dataset):
+    plain = DopeModel(overfit_dope / "last.pt")
+    zoomed = DopeModel(overfit_dope / "last.pt", zoom=zoom_run)
+    frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
+    image = read_rgb(frame.image)
+    first, second = plain.estimate(image, frame.K), zoomed.estimate(image, frame.K)
+    assert len(first) == len(second) > 0
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(a.T[:3, :3], b.T[:3, :3])
+        np.testing.assert_allclose(b.T, zoomed.zoom.refine(image, frame.K, a.T), atol=1e-9)
+        assert np.linalg.norm(a.T[:3, 3] - b.T[:3, 3]) > 1e-5  # it moved them
+    with pytest.raises(PegasusError, match="undistorted"):
+        zoomed.estimate(image, frame.K, dist=np.zeros(5))
+
+
+def test_a_zoom_network_of_another_object_or_a_file_that_is_none_is_refused(overfit_dope, zoom_run, tmp_path,
+                                                                            capsys):
+    doc = torch.load(zoom_run, weights_only=True)
+    doc["obj_id"] = 7
+    other = tmp_path / "other.pt"
+    torch.save(doc, other)
+    with pytest.raises(PegasusError, match="obj_id 7"):
+        DopeModel(overfit_dope / "last.pt", zoom=other)
+    for bad in (overfit_dope / "last.pt", tmp_path / "missing.pt"):  # a DOPE checkpoint, nothing
+        with pytest.raises(PegasusError, match="zoom checkpoint"):
+            load(bad)
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a checkpoint")
+    assert main(["eval", "--model", str(overfit_dope / "last.pt"), "--zoom", str(garbage), "--data",
+                 str(tmp_path), "--out", str(tmp_path / "eval")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "garbage.pt" in err
+
+
+def test_train_zoom_refuses_bad_input_with_one_line(dope_dataset, tmp_path, capsys):
+    for args in (["--data", str(tmp_path), "--object", "1"],  # not a BOP dataset
+                 ["--data", str(dope_dataset), "--object", "no_such_object"],
+                 ["--data", str(dope_dataset), "--object", "1", "--crop-px", "100"],  # not a multiple of 32
+                 ["--data", str(dope_dataset), "--object", "1", "--out", str(tmp_path)]):  # a folder
+        assert main(["train-zoom", *args, "--out", str(tmp_path / "z.pt")] if "--out" not in args
+                    else ["train-zoom", *args]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "Traceback" not in err, err
+    assert not (tmp_path / "z.pt").exists()
