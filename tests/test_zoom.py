@@ -113,7 +113,7 @@ def test_a_zoom_network_brings_estimates_back_towards_the_truth(zoom_run, dope_d
                 after.append(np.abs(offsets(inst.T, refiner.refine(image, frame.K, estimate), frame.K,
                                             refiner.geometry)))
     before, after = np.median(before, axis=0), np.median(after, axis=0)
-    assert (after < 0.6 * before).all(), (before, after)
+    assert (after < 0.4 * before).all(), (before, after)  # measured: a fifth of it
 
 
 def test_dope_poses_pass_through_the_zoom_network_with_their_rotation_kept(overfit_dope, zoom_run, dope_dataset):
