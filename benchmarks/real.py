@@ -253,7 +253,8 @@ def main() -> int:
     parser.add_argument("--out", required=True)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variant", choices=("light", "pretrained"), default=VARIANT)
-    parser.add_argument("--zoom-epochs", type=int, default=ZoomConfig().epochs, help="the zoom network's epochs")
+    parser.add_argument("--zoom-epochs", type=int, default=ZoomConfig.model_fields["epochs"].default,
+                        help="the zoom network's epochs")
     parser.add_argument("--no-zoom", dest="zoom", action="store_false",
                         help="no zoom network: DOPE's poses as PnP and the distance head place them")
     parser.add_argument("--refine-rgb", action="store_true",
