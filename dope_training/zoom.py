@@ -145,8 +145,11 @@ class ZoomRefiner:
 
     def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray, iterations: int = ITERATIONS) -> np.ndarray:
         """T [4, 4] of an estimate in ``image`` [H, W, 3] uint8 RGB (an undistorted pinhole camera, K [3, 3]) with
-        its position refined ``iterations`` times; the rotation kept."""
+        its position refined ``iterations`` times; the rotation kept. A pose with part of the model at or behind
+        the camera plane has no crop: it stays where it is."""
         for _ in range(iterations):
+            if ((self.geometry.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
+                break
             crop, silhouette, _ = zoom_input(image, T, K, self.geometry)
             with torch.no_grad():
                 out = self.net(zoom_tensor(crop[None], silhouette[None]).to(self.device)).cpu().numpy()[0]

@@ -12,7 +12,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from dope_training.infer import DopeModel
-from dope_training.zoom import ZoomGeometry, load, moved, offsets, zoom_input
+from dope_training.zoom import ZoomGeometry, ZoomNet, ZoomRefiner, load, moved, offsets, zoom_input
 from dope_training.zoom_config import ZoomConfig
 from dope_training.zoom_train import drawn_estimate, train_zoom
 from pegasus_gen.cli.main import main
@@ -87,6 +87,17 @@ def test_the_drawn_estimates_spread_as_configured():
     assert np.std(off[:, 2]) == pytest.approx(cfg.distance_std, rel=0.08) and np.abs(off[:, 2]).max() <= 0.15 + 1e-6
     turns = [np.degrees(Rotation.from_matrix(E[:3, :3] @ T[:3, :3].T).magnitude()) for T, E in zip(truths, drawn)]
     assert np.median(turns) == pytest.approx(0.674 * cfg.rotation_std_deg, rel=0.08)  # |N(0, std)|'s median
+
+
+def test_a_pose_reaching_behind_the_camera_plane_stays_where_it_is():
+    refiner = ZoomRefiner(ZoomNet(64, pretrained=False), _ball(crop_px=64, object_px=44.0), 1, "ball",
+                          torch.device("cpu"))
+    image = np.zeros((480, 640, 3), np.uint8)
+    for z in (0.03, -0.5):  # the ball's near side at or behind the camera plane; the ball behind the camera
+        T = _pose(0, centre=[0.0, 0.0, z])
+        np.testing.assert_array_equal(refiner.refine(image, K, T), T)
+    T = _pose(0, centre=[0.0, 0.0, 0.5])
+    assert not np.array_equal(refiner.refine(image, K, T), T)  # in front of it: moved (by an untrained network)
 
 
 @pytest.fixture(scope="module")
