@@ -6,8 +6,10 @@ around the estimate's projected centre (the model box's centre, DOPE's centroid 
 object's diameter spans ``object_px`` of a ``crop_px`` crop at the estimated distance; the model's silhouette at the
 estimated pose is rendered into the same crop; a small network (the ImageNet EfficientNet-Lite0 trunk with a fourth
 input channel for the silhouette, and a regression head) reads where the object in the image lies against that
-silhouette: the centre's offset in the crop (in units of ``object_px``) and log(true / estimated distance). The
-rotation is kept. ``ITERATIONS`` looks, each from the position the last one gave.
+silhouette: the centre's offset in the crop (in units of ``object_px``) and log(true / estimated distance), and a
+network trained with ``rotation`` also the turn (a rotation vector in the camera frame, rad) that takes the estimated
+rotation to the true one, about the box centre; without it the rotation is kept. ``ITERATIONS`` looks, each from the
+pose the last one gave.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 from torch import nn
 
 from dope_training.backbone import OUT_CHANNELS, STEM_CHANNELS, LiteTrunk, load_pretrained
@@ -27,8 +30,10 @@ from pegasus_gen.render.silhouette import mesh_coverage
 ZOOM_FORMAT = "pegasus-zoom-1"
 ITERATIONS = 2
 # the spread of the offsets the network is taught (and the scale of its outputs): the centre's offset as a share of
-# object_px, and log(true / estimated distance)
-OFFSET_STD = np.array([0.04, 0.04, 0.04], np.float32)
+# object_px, log(true / estimated distance), and the turn's rotation vector (rad; a turn of |N(0, 12 deg)| about a
+# random axis has components of std 0.12 rad)
+OFFSET_STD = np.array([0.04, 0.04, 0.04, 0.12, 0.12, 0.12], np.float32)
+POSITION, WITH_ROTATION = 3, 6  # the network's outputs: the first three offsets, or all six
 SUPERSAMPLE = 4  # the silhouette's antialiasing: coverage of 4 x 4 samples per crop pixel
 INPUT_MEAN = (0.485, 0.456, 0.406, 0.5)  # ImageNet's for RGB, then the silhouette's coverage 0..1
 INPUT_STD = (0.229, 0.224, 0.225, 0.5)
@@ -82,34 +87,41 @@ def zoom_input(image: np.ndarray, T: np.ndarray, K: np.ndarray, g: ZoomGeometry)
 
 
 def offsets(T_true: np.ndarray, T_est: np.ndarray, K: np.ndarray, g: ZoomGeometry) -> np.ndarray:
-    """[3] what the network learns for the estimate T_est of an instance at T_true (both [4, 4], m): the true box
-    centre's offset from the estimate's in the estimate's crop (x, y in units of ``g.object_px``) and log(true /
-    estimated depth of the centre)."""
+    """[6] what the network learns for the estimate T_est of an instance at T_true (both [4, 4], m): the true box
+    centre's offset from the estimate's in the estimate's crop (x, y in units of ``g.object_px``), log(true /
+    estimated depth of the centre), and the rotation vector [3] (camera frame, rad) of R_true R_est^T."""
     w = zoom_window(T_est, K, g)
     p = T_true[:3, :3] @ g.centre + T_true[:3, 3]
     uv = (K @ p)[:2] / p[2]
-    return np.array([*((uv - w.centre_px) * w.s / g.object_px), np.log(p[2] / w.centre[2])], np.float32)
+    turn = Rotation.from_matrix(T_true[:3, :3] @ T_est[:3, :3].T).as_rotvec()
+    return np.array([*((uv - w.centre_px) * w.s / g.object_px), np.log(p[2] / w.centre[2]), *turn], np.float32)
 
 
 def moved(T: np.ndarray, K: np.ndarray, g: ZoomGeometry, offset: np.ndarray) -> np.ndarray:
-    """T [4, 4] with its box centre moved by ``offset`` [3] (``offsets``' units); the rotation kept."""
+    """T [4, 4] with its box centre moved by ``offset`` (``offsets``' units): [3] keeps the rotation, [6] also turns
+    it about the box centre."""
     w = zoom_window(T, K, g)
     uv = w.centre_px + np.asarray(offset[:2], np.float64) * g.object_px / w.s
     p = np.linalg.solve(K, [uv[0], uv[1], 1.0]) * w.centre[2] * np.exp(offset[2])
     out = T.copy()
-    out[:3, 3] = p - T[:3, :3] @ g.centre
+    if len(offset) == WITH_ROTATION:
+        out[:3, :3] = Rotation.from_rotvec(np.asarray(offset[3:], np.float64)).as_matrix() @ T[:3, :3]
+    out[:3, 3] = p - out[:3, :3] @ g.centre
     return out
 
 
 class ZoomNet(nn.Module):
-    """crop and silhouette [B, 4, C, C] (0..1; C a multiple of 32) -> offsets [B, 3] in units of OFFSET_STD: the
-    EfficientNet-Lite0 trunk (its stem widened to a fourth channel, which starts at zero weight) and two strided
-    convolutions and two linear layers."""
+    """crop and silhouette [B, 4, C, C] (0..1; C a multiple of 32) -> the first ``outputs`` offsets [B, outputs]
+    (POSITION or WITH_ROTATION) in units of OFFSET_STD: the EfficientNet-Lite0 trunk (its stem widened to a fourth
+    channel, which starts at zero weight) and two strided convolutions and two linear layers."""
 
-    def __init__(self, crop_px: int, pretrained: bool = True):
+    def __init__(self, crop_px: int, outputs: int = POSITION, pretrained: bool = True):
         super().__init__()
         if crop_px % 32:
             raise PegasusError(f"a zoom crop of {crop_px} px: a multiple of 32 px expected")
+        if outputs not in (POSITION, WITH_ROTATION):
+            raise PegasusError(f"a zoom network of {outputs} outputs: {POSITION} or {WITH_ROTATION} expected")
+        self.outputs = outputs
         self.trunk = LiteTrunk()
         if pretrained:
             load_pretrained(self.trunk)
@@ -123,7 +135,7 @@ class ZoomNet(nn.Module):
         self.head = nn.Sequential(
             nn.Conv2d(OUT_CHANNELS, 128, 3, 2, 1, bias=False), nn.BatchNorm2d(128), nn.ReLU(inplace=True),
             nn.Conv2d(128, 64, 3, 2, 1, bias=False), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
-            nn.Flatten(), nn.Linear(64 * cells * cells, 256), nn.ReLU(inplace=True), nn.Linear(256, 3))
+            nn.Flatten(), nn.Linear(64 * cells * cells, 256), nn.ReLU(inplace=True), nn.Linear(256, outputs))
         self.register_buffer("mean", torch.tensor(INPUT_MEAN).view(1, 4, 1, 1))
         self.register_buffer("std", torch.tensor(INPUT_STD).view(1, 4, 1, 1))
 
@@ -145,7 +157,8 @@ class ZoomRefiner:
 
     def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray, iterations: int = ITERATIONS) -> np.ndarray:
         """T [4, 4] of an estimate in ``image`` [H, W, 3] uint8 RGB (an undistorted pinhole camera, K [3, 3]) with
-        its position refined ``iterations`` times; the rotation kept. A pose with part of the model at or behind
+        its position (and with a WITH_ROTATION network its rotation; else the rotation kept) refined ``iterations``
+        times. A pose with part of the model at or behind
         the camera plane has no crop: it stays where it is."""
         for _ in range(iterations):
             if ((self.geometry.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
@@ -153,7 +166,7 @@ class ZoomRefiner:
             crop, silhouette, _ = zoom_input(image, T, K, self.geometry)
             with torch.no_grad():
                 out = self.net(zoom_tensor(crop[None], silhouette[None]).to(self.device)).cpu().numpy()[0]
-            T = moved(T, K, self.geometry, out * OFFSET_STD)
+            T = moved(T, K, self.geometry, out * OFFSET_STD[:self.net.outputs])
         return T
 
 
@@ -162,7 +175,7 @@ def save(path: Path, net: ZoomNet, g: ZoomGeometry, obj_id: int, name: str, conf
     torch.save({"format": ZOOM_FORMAT, "obj_id": obj_id, "name": name, "config": config,
                 "vertices": torch.from_numpy(g.vertices), "faces": torch.from_numpy(g.faces),
                 "centre": torch.from_numpy(g.centre), "diameter": g.diameter, "crop_px": g.crop_px,
-                "object_px": g.object_px, "model": net.state_dict()}, path)
+                "object_px": g.object_px, "outputs": net.outputs, "model": net.state_dict()}, path)
 
 
 def load(path: str | Path, device: str | torch.device = "cpu") -> ZoomRefiner:
@@ -179,6 +192,6 @@ def load(path: str | Path, device: str | torch.device = "cpu") -> ZoomRefiner:
     g = ZoomGeometry(doc["vertices"].numpy().astype(np.float64), doc["faces"].numpy().astype(np.int64),
                      doc["centre"].numpy().astype(np.float64), float(doc["diameter"]), int(doc["crop_px"]),
                      float(doc["object_px"]))
-    net = ZoomNet(g.crop_px, pretrained=False)
+    net = ZoomNet(g.crop_px, int(doc.get("outputs", POSITION)), pretrained=False)  # checkpoints before: position
     net.load_state_dict(doc["model"])
     return ZoomRefiner(net.to(device), g, int(doc["obj_id"]), str(doc["name"]), device)

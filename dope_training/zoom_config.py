@@ -29,6 +29,8 @@ class ZoomConfig(BaseModel):
     distance_std: float = Field(0.04, gt=0.0, description="the drawn estimates' log distance: std (at most 3 std)")
     rotation_std_deg: float = Field(12.0, ge=0.0, description="the drawn estimates' turn about a random axis: std, "
                                     "degrees")
+    rotation: bool = Field(False, description="also learn the turn back to the true rotation (else the rotation is "
+                           "kept)")
     min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
     backgrounds: float = Field(0.5, ge=0.0, le=1.0, description="share of the crops with a real photograph behind "
                                "the objects")

@@ -2,8 +2,9 @@
 
 Each visible instance of the object is seen from ``per_instance`` estimates drawn around its true pose (the box
 centre moved aside and along its ray, the rotation turned: the kind of error DOPE makes), and the network learns
-the offsets back to the truth (``zoom.offsets``). The crops are drawn once; every epoch redraws their augmentation:
-a real photograph behind the objects (BOP's visible masks), blur, colour jitter and hue as DOPE's recipe.
+the offsets back to the truth (``zoom.offsets``: the position's, and with ``rotation`` the turn's too). The crops
+are drawn once; every epoch redraws their augmentation: a real photograph behind the objects (BOP's visible masks),
+blur, colour jitter and hue as DOPE's recipe.
 """
 
 from __future__ import annotations
@@ -26,13 +27,24 @@ from dope_training.backgrounds import (
 )
 from dope_training.data import Augment, jitter_colour, resolve_objects
 from dope_training.refine_rgb import decimated
-from dope_training.zoom import OFFSET_STD, ZoomGeometry, ZoomNet, offsets, save, zoom_input, zoom_tensor
+from dope_training.zoom import (
+    OFFSET_STD,
+    POSITION,
+    WITH_ROTATION,
+    ZoomGeometry,
+    ZoomNet,
+    offsets,
+    save,
+    zoom_input,
+    zoom_tensor,
+)
 from dope_training.zoom_config import ZoomConfig
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, model_boxes, models_info, object_names, read_model
 from pegasus_gen.io.images import read_rgb
 
-LOSS_WEIGHTS = (1.0, 1.0, 2.0)  # centre x, y, log distance: the distance is what DOPE gets least right
+# centre x, y, log distance (what DOPE gets least right), the turn's rotation vector
+LOSS_WEIGHTS = (1.0, 1.0, 2.0, 1.0, 1.0, 1.0)
 
 
 def drawn_estimate(T: np.ndarray, K: np.ndarray, g: ZoomGeometry, cfg: ZoomConfig,
@@ -64,7 +76,7 @@ def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float) -> 
 
 def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfig, rng: np.random.Generator) -> dict:
     """The drawn crops of every visible instance: crops [N, C, C, 3], silhouettes [N, C, C], the objects' visible
-    masks in the crop [N, C, C] (uint8 coverage x 255, for photo backgrounds) and offsets [N, 3]."""
+    masks in the crop [N, C, C] (uint8 coverage x 255, for photo backgrounds) and offsets [N, 6]."""
     frames = [f for root in roots for f in bop_frames(root / cfg.split)]
     out = {"crops": [], "silhouettes": [], "objects": [], "offsets": []}
     for frame in tqdm(frames, desc="zoom crops", unit="img"):
@@ -109,14 +121,15 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     photos = split_photos(load_photos(cfg.background_photos))[0] if cfg.backgrounds > 0 else []
     aug = Augment(blur_px=cfg.blur_px, brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
                   saturation=cfg.colour_jitter, hue_deg=cfg.hue_deg)
-    net = ZoomNet(cfg.crop_px).to(device)
+    outputs = WITH_ROTATION if cfg.rotation else POSITION
+    net = ZoomNet(cfg.crop_px, outputs).to(device)
     n = len(samples["crops"])
     batches = max(n // cfg.batch_size, 1)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
     schedule = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.epochs * batches,
                                                    pct_start=0.05)
-    weights = torch.tensor(LOSS_WEIGHTS, device=device)
-    scale = torch.from_numpy(OFFSET_STD).to(device)
+    weights = torch.tensor(LOSS_WEIGHTS[:outputs], device=device)
+    scale = torch.from_numpy(OFFSET_STD[:outputs]).to(device)
     started = time.perf_counter()
     net.train()
     for epoch in range(cfg.epochs):
@@ -132,7 +145,7 @@ def train_zoom(cfg: ZoomConfig) -> Path:
                     crop = behind_objects(crop, samples["objects"][i] / 255.0, photo_view(photos, cfg.crop_px, rng))
                 crops.append(jitter_colour(crop, rng, aug))
             x = zoom_tensor(np.stack(crops), samples["silhouettes"][idx]).to(device)
-            y = torch.from_numpy(samples["offsets"][idx]).to(device) / scale
+            y = torch.from_numpy(samples["offsets"][idx, :outputs]).to(device) / scale
             loss = (torch.nn.functional.smooth_l1_loss(net(x), y, reduction="none") * weights).mean()
             opt.zero_grad()
             loss.backward()

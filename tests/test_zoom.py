@@ -1,7 +1,7 @@
 """The zoomed second look (dope_training.zoom): its crop centres the estimate with the object's diameter
 object_px long, its offsets and the move they give are inverses, the drawn estimates spread as configured, a
-network trained on a few frames brings estimates back, DOPE's poses pass through it with their rotation kept, and
-bad input is refused."""
+position network keeps the rotation and a rotation network turns it, a network trained on a few frames brings
+estimates back, DOPE's poses pass through it with their rotation kept, and bad input is refused."""
 
 from dataclasses import replace
 
@@ -12,7 +12,17 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from dope_training.infer import DopeModel
-from dope_training.zoom import ZoomGeometry, ZoomNet, ZoomRefiner, load, moved, offsets, zoom_input
+from dope_training.zoom import (
+    POSITION,
+    WITH_ROTATION,
+    ZoomGeometry,
+    ZoomNet,
+    ZoomRefiner,
+    load,
+    moved,
+    offsets,
+    zoom_input,
+)
 from dope_training.zoom_config import ZoomConfig
 from dope_training.zoom_train import drawn_estimate, train_zoom
 from pegasus_gen.cli.main import main
@@ -61,17 +71,23 @@ def test_the_crop_centres_the_estimate_and_the_diameter_spans_object_px():
         assert cover.sum() == pytest.approx(area, rel=0.01)
 
 
-def test_offsets_and_the_move_they_give_are_inverse_and_keep_the_rotation():
-    cfg = ZoomConfig(data=["x"], object="1")
+def test_offsets_and_the_move_they_give_are_inverse_with_or_without_the_turn():
+    cfg = ZoomConfig(data=["x"], object="1", rotation_std_deg=30.0)
     g = replace(_ball(), centre=np.array([0.01, -0.02, 0.03]))  # the model's box centre off its origin
     rng = np.random.default_rng(1)
     for seed in range(20):
         truth = _pose(seed)
         estimate = drawn_estimate(truth, K, g, cfg, rng)
-        back = moved(estimate, K, g, offsets(truth, estimate, K, g))  # offsets in float32: a micrometre
-        np.testing.assert_allclose(back[:3, :3] @ g.centre + back[:3, 3], truth[:3, :3] @ g.centre + truth[:3, 3],
-                                   atol=1e-6)
+        off = offsets(truth, estimate, K, g)  # in float32: a micrometre, a microradian
+        centre = truth[:3, :3] @ g.centre + truth[:3, 3]
+        back = moved(estimate, K, g, off[:3])  # the position alone: the rotation kept
+        np.testing.assert_allclose(back[:3, :3] @ g.centre + back[:3, 3], centre, atol=1e-6)
         np.testing.assert_array_equal(back[:3, :3], estimate[:3, :3])
+        back = moved(estimate, K, g, off)  # with the turn: the truth itself, turned about the same centre
+        np.testing.assert_allclose(back, truth, atol=1e-6)
+        # the turn is the rotation between the two, as an angle about an axis (scipy's rotation vector)
+        angle = np.degrees(np.arccos(np.clip((np.trace(truth[:3, :3] @ estimate[:3, :3].T) - 1) / 2, -1, 1)))
+        assert np.degrees(np.linalg.norm(off[3:])) == pytest.approx(angle, abs=1e-3)
         np.testing.assert_allclose(offsets(truth, truth, K, g), 0.0, atol=1e-6)
 
 
@@ -100,12 +116,26 @@ def test_a_pose_reaching_behind_the_camera_plane_stays_where_it_is():
     assert not np.array_equal(refiner.refine(image, K, T), T)  # in front of it: moved (by an untrained network)
 
 
+def test_a_position_network_keeps_the_rotation_and_a_rotation_network_turns_it():
+    image = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    T = _pose(0, centre=[0.02, -0.01, 0.6])
+    for outputs, turned in ((POSITION, False), (WITH_ROTATION, True)):
+        torch.manual_seed(0)  # untrained networks: their outputs are small but not zero
+        refiner = ZoomRefiner(ZoomNet(64, outputs, pretrained=False), _ball(crop_px=64, object_px=44.0), 1, "ball",
+                              torch.device("cpu"))
+        out = refiner.refine(image, K, T)
+        assert not np.allclose(out[:3, 3], T[:3, 3])
+        assert np.allclose(out[:3, :3], T[:3, :3], atol=1e-12) != turned
+    with pytest.raises(PegasusError, match="outputs"):
+        ZoomNet(64, 4, pretrained=False)
+
+
 @pytest.fixture(scope="module")
 def zoom_run(dope_dataset, tmp_path_factory):
-    """A zoom network for the noodle cups of ``dope_dataset`` (64 px crops), trained 6 epochs on 96 estimates
+    """A zoom network for the noodle cups of ``dope_dataset`` (64 px crops), trained 12 epochs on 96 estimates
     drawn around each of its instances."""
     out = tmp_path_factory.mktemp("zoom") / "zoom.pt"
-    return train_zoom(ZoomConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(out), epochs=6,
+    return train_zoom(ZoomConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(out), epochs=12,
                                  per_instance=96, crop_px=64, object_px=44.0, rotation_std_deg=5.0, backgrounds=0.0,
                                  device="cpu", seed=0))
 
@@ -120,11 +150,11 @@ def test_a_zoom_network_brings_estimates_back_towards_the_truth(zoom_run, dope_d
         for inst in (i for i in frame.instances if i.obj_id == refiner.obj_id and i.visib_fract > 0.5):
             for _ in range(8):
                 estimate = drawn_estimate(inst.T, frame.K, refiner.geometry, cfg, rng)
-                before.append(np.abs(offsets(inst.T, estimate, frame.K, refiner.geometry)))
+                before.append(np.abs(offsets(inst.T, estimate, frame.K, refiner.geometry)[:3]))
                 after.append(np.abs(offsets(inst.T, refiner.refine(image, frame.K, estimate), frame.K,
-                                            refiner.geometry)))
+                                            refiner.geometry)[:3]))
     before, after = np.median(before, axis=0), np.median(after, axis=0)
-    assert (after < 0.4 * before).all(), (before, after)  # measured: a fifth of it
+    assert (after < 0.4 * before).all(), (before, after)  # measured: 0.13-0.16 (at 6 epochs 0.19-0.42)
 
 
 def test_dope_poses_pass_through_the_zoom_network_with_their_rotation_kept(overfit_dope, zoom_run, dope_dataset):

@@ -185,12 +185,13 @@ def add_commands(sub) -> None:
     p.add_argument("--resume", action="store_true", help="continue the training in --out (more --epochs)")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("train-zoom", help="train the zoomed second look at each estimate (its centre and distance) "
+    p = sub.add_parser("train-zoom", help="train the zoomed second look at each estimate (its centre and distance; "
+                       "with --rotation its rotation too) "
                        "for one object on BOP datasets")
     options.add_config_flags(p, ZoomConfig, (
         "data", "object", "out", "split", "epochs", "per_instance", "batch_size", "lr", "crop_px", "object_px",
-        "centre_std", "distance_std", "rotation_std_deg", "min_visibility", "backgrounds", "background_photos",
-        "blur_px", "colour_jitter", "hue_deg", "device", "seed"),
+        "centre_std", "distance_std", "rotation_std_deg", "rotation", "min_visibility", "backgrounds",
+        "background_photos", "blur_px", "colour_jitter", "hue_deg", "device", "seed"),
         data={"action": "append", "nargs": None, "help": "BOP dataset root (repeatable)"})
     p.set_defaults(func=cmd_train_zoom)
 
