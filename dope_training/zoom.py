@@ -158,8 +158,7 @@ class ZoomRefiner:
     def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray, iterations: int = ITERATIONS) -> np.ndarray:
         """T [4, 4] of an estimate in ``image`` [H, W, 3] uint8 RGB (an undistorted pinhole camera, K [3, 3]) with
         its position (and with a WITH_ROTATION network its rotation; else the rotation kept) refined ``iterations``
-        times. A pose with part of the model at or behind
-        the camera plane has no crop: it stays where it is."""
+        times. A pose with part of the model at or behind the camera plane has no crop: it stays where it is."""
         for _ in range(iterations):
             if ((self.geometry.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
                 break
