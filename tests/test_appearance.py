@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 from conftest import random_cloud
+from scipy.spatial.transform import Rotation
 from test_generate import config, dataset_files
 
 from pegasus_gen.dataset.appearance import frame_effects, image_motion, object_colour_transforms
@@ -16,7 +17,16 @@ from pegasus_gen.dataset.validate import validate
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.sensor import SensorEffects, apply_sensor, disc_kernel, streak_kernel
 from pegasus_gen.splats import sh as shlib
-from pegasus_gen.splats.colour import blend_colour, hue_rotation, shade_lambert, splat_normals, transform_colour
+from pegasus_gen.splats.cloud import SplatCloud
+from pegasus_gen.splats.colour import (
+    blend_colour,
+    hue_rotation,
+    shade_lambert,
+    shade_specular,
+    smooth_normals,
+    splat_normals,
+    transform_colour,
+)
 from pegasus_gen.splats.from_mesh import mesh_to_splats
 from pegasus_gen.splats.procedural import random_texture
 
@@ -65,6 +75,51 @@ def test_lambert_shading_lights_the_side_facing_the_light_and_keeps_ambient_behi
     np.testing.assert_allclose(after[below], ambient * before[below], atol=1e-4)  # away from the light: ambient
     ratio = after[below] / before[below]
     assert np.allclose(ratio, ratio[:, :1], atol=1e-4)  # a grey factor: the hue stays
+
+
+def flat_patch(tilt_deg: float, count: int = 400):
+    """Flat splats on the plane z = 0 (5 cm square), each tilted about a random horizontal axis by |N(0, tilt)|."""
+    rng = np.random.default_rng(3)
+    means = np.column_stack([rng.uniform(-0.025, 0.025, (count, 2)), np.zeros(count)])
+    axes = np.column_stack([rng.normal(size=(count, 2)), np.zeros(count)])
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    x, y, z, w = Rotation.from_rotvec(axes * np.radians(np.abs(rng.normal(0, tilt_deg, (count, 1))))).as_quat().T
+    return SplatCloud(means=means, quats_wxyz=np.column_stack([w, x, y, z]),
+                      log_scales=np.log(np.tile([0.002, 0.002, 0.0001], (count, 1))),
+                      opacity_logits=np.full(count, 3.0), sh=np.full((count, 1, 3), shlib.rgb_to_sh_dc(0.3)),
+                      labels=np.zeros(count, np.int32))
+
+
+def test_a_highlight_peaks_where_the_surface_mirrors_the_light_to_the_eye_and_is_the_same_on_every_channel():
+    cloud = flat_patch(0.0)
+    normals = np.tile([0.0, 0.0, 1.0], (len(cloud), 1))
+    centre = np.array([0.0, 0.0, -0.1])  # below the patch: splat_normals point up
+    np.testing.assert_allclose(splat_normals(cloud, centre), normals, atol=1e-9)
+    strength, shininess = 0.5, 20.0
+    up = np.array([0.0, 0.0, 1.0])
+    for angle in (0.0, 10.0, 40.0):  # the light straight above, the eye `angle` degrees off it, far away
+        a = np.radians(angle)
+        eye = 1e4 * np.array([np.sin(a), 0.0, np.cos(a)])
+        after = shlib.sh_dc_to_rgb(shade_specular(cloud, normals, up, eye, strength, shininess).sh[:, 0])
+        # n . h = cos(angle / 2): h halves the angle between the light and the eye
+        np.testing.assert_allclose(after - 0.3, strength * np.cos(a / 2) ** shininess, atol=1e-6)
+    eye = np.array([0.0, 0.0, 10.0])
+    below = shade_specular(cloud, normals, -up, eye, strength, shininess)  # lit from behind: no highlight
+    np.testing.assert_allclose(shlib.sh_dc_to_rgb(below.sh[:, 0]), 0.3, atol=1e-9)
+
+
+def test_smoothed_normals_take_a_bumpy_surface_flat_and_keep_a_sphere_round():
+    bumpy = flat_patch(15.0)
+    centre = np.array([0.0, 0.0, -0.1])
+    raw, smooth = splat_normals(bumpy, centre), smooth_normals(bumpy, centre)
+    np.testing.assert_allclose(np.linalg.norm(smooth, axis=1), 1.0, atol=1e-9)
+    raw_tilt, smooth_tilt = (np.degrees(np.arccos(np.clip(n[:, 2], -1, 1))) for n in (raw, smooth))
+    assert np.median(smooth_tilt) < np.median(raw_tilt) / 3  # measured: 1.6 against 11.0 degrees
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
+    sphere.visual.vertex_colors = np.tile([200, 120, 60, 255], (len(sphere.vertices), 1))
+    cloud = mesh_to_splats(sphere, np.random.default_rng(0), spacing=0.004)
+    outward = cloud.means / np.linalg.norm(cloud.means, axis=1, keepdims=True)
+    assert np.quantile(np.sum(smooth_normals(cloud, np.zeros(3)) * outward, axis=1), 0.05) > 0.98  # measured 0.998
 
 
 def test_a_hue_turn_keeps_grey_and_brightness_and_turns_the_hue():
@@ -197,3 +252,26 @@ def test_a_light_on_the_objects_shades_only_the_objects_and_leaves_the_other_dra
         away = cv2.dilate(objects.astype(np.uint8), np.ones((15, 15), np.uint8)) == 0  # blur and JPEG bleed
         diff = np.abs(one - two).mean(axis=2)
         assert diff[objects].mean() > 8 and diff[away].mean() < 1.5  # measured: 13.7-19.0 and 0.3-0.5
+
+
+def test_highlights_brighten_only_the_lit_objects_and_change_no_other_draw(library, tmp_path):
+    from pegasus_gen.dataset.scene import scene_looks
+
+    options = ["scenes=1", "frames_per_scene=2", "appearance.enabled=true", "shadows.enabled=false",
+               "appearance.object_light=1"]
+    matte, glossy = (config(library, tmp_path / n, *options, f"appearance.object_specular=[{v}, {v}]")
+                     for n, v in (("matte", 0), ("glossy", 0.8)))
+    a, b = scene_looks(matte, 0, 3), scene_looks(glossy, 0, 3)
+    assert a.light.specular == 0 and b.light.specular == 0.8 and 8 <= b.light.shininess <= 48
+    assert np.array_equal(a.light.direction, b.light.direction) and a.light.ambient == b.light.ambient
+    one, two = (generate_dataset(library, tmp_path / n, *options, f"appearance.object_specular=[{v}, {v}]")
+                for n, v in (("plain", 0), ("shiny", 0.8)))
+    scene = "train_pbr/000000"
+    for im in range(2):
+        x, y = (cv2.imread(str(d / scene / "rgb" / f"{im:06d}.jpg")).astype(float) for d in (one, two))
+        masks = [cv2.imread(str(p), 0) > 0 for p in sorted((one / scene / "mask_visib").glob(f"{im:06d}_*.png"))]
+        objects = np.any(masks, axis=0)
+        away = cv2.dilate(objects.astype(np.uint8), np.ones((15, 15), np.uint8)) == 0  # blur and JPEG bleed
+        brighter = (y - x).mean(axis=2)
+        assert np.quantile(brighter[objects], 0.99) > 30 and brighter[objects].mean() > 3  # measured: 61-63, 9-11
+        assert np.abs(brighter[away]).mean() < 1.5  # measured: 0.2-0.4

@@ -2,13 +2,15 @@
 
 Per scene: a colour transform for each object instance (per-channel gain, then a hue turn), a tint of the
 environment (per-channel gain) and, for a share of scenes, a random procedural texture painted over the
-environment and a distant light shading the objects, applied to the splats. Per frame: the camera (exposure,
-white balance, gamma, shot and read noise, defocus, motion blur along the image motion of the objects'
-centre, JPEG quality), applied to the rendered image. None of it moves anything: the labels are those of the scene
-without it.
+environment and a distant light shading the objects (its highlights follow the camera), applied to the splats. Per
+frame: the camera (exposure, white balance, gamma, shot and read noise, defocus, motion blur along the image motion
+of the objects' centre, JPEG quality), applied to the rendered image. None of it moves anything: the labels are
+those of the scene without it.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,13 +39,25 @@ def environment_texture(cfg: AppearanceConfig, rng: np.random.Generator):
     return (texture, weight) if repaint else None
 
 
-def object_light(cfg: AppearanceConfig, rng: np.random.Generator) -> tuple[np.ndarray, float] | None:
-    """(unit direction [3] towards a distant light, world z up, 20-90 degrees above the horizon; the ambient
-    share) lighting the objects, for a share ``cfg.object_light`` of scenes; None for the others."""
+class ObjectLight(NamedTuple):
+    """A distant light on a scene's objects: the unit direction [3] towards it (world), the ambient share of the
+    diffuse shading, and its highlights' strength (0: none) and shininess (``splats.colour.shade_specular``)."""
+
+    direction: np.ndarray
+    ambient: float
+    specular: float
+    shininess: float
+
+
+def object_light(cfg: AppearanceConfig, rng: np.random.Generator) -> ObjectLight | None:
+    """The light on the objects (world z up, 20-90 degrees above the horizon, from a random azimuth) for a share
+    ``cfg.object_light`` of scenes; None for the others."""
     lit = rng.uniform() < cfg.object_light
     azimuth, elevation = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(20, 90))
     direction = np.array([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
-    return (direction, float(rng.uniform(*cfg.object_ambient))) if lit else None
+    ambient = float(rng.uniform(*cfg.object_ambient))
+    specular, shininess = float(rng.uniform(*cfg.object_specular)), float(rng.uniform(*cfg.object_shininess))
+    return ObjectLight(direction, ambient, specular, shininess) if lit else None
 
 
 def image_motion(K: np.ndarray, T_before: np.ndarray, T_after: np.ndarray, point: np.ndarray,

@@ -149,6 +149,11 @@ class AppearanceConfig(_Strict):
     # ambient share drawn from object_ambient (splats.colour.shade_lambert)
     object_light: float = Field(default=0.0, ge=0.0, le=1.0)
     object_ambient: Annotated[Range, _range(0.0, 1.0)] = (0.35, 0.75)
+    # the lit scenes' highlights: white of strength drawn from object_specular added where a splat mirrors the light
+    # towards the camera, strength * max(0, n . h)^shininess (Blinn-Phong, shininess drawn from object_shininess;
+    # splats.colour.shade_specular), recomputed for every frame; (0, 0): none, as a scan's diffuse colours alone
+    object_specular: Annotated[Range, _range(0.0, 2.0)] = (0.0, 0.0)
+    object_shininess: Annotated[Range, _range(1.0, 1000.0)] = (8.0, 48.0)
     exposure_ev: Annotated[Range, _range(-10.0, 10.0)] = (-0.6, 0.4)  # per frame: gain 2^ev
     white_balance: Annotated[Range, _range(0.1, 10.0)] = (0.9, 1.1)  # per frame, red and blue gains (green 1)
     gamma: Annotated[Range, _range(0.1, 10.0)] = (0.85, 1.2)  # per frame: out = in^(1/gamma)

@@ -21,6 +21,7 @@ import numpy as np
 
 from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.dataset.appearance import (
+    ObjectLight,
     environment_texture,
     environment_tint,
     frame_effects,
@@ -43,7 +44,13 @@ from pegasus_gen.render.renderer import render
 from pegasus_gen.render.sensor import apply_sensor
 from pegasus_gen.render.shadows import contact_shadows, occluder
 from pegasus_gen.splats.cloud import SplatCloud
-from pegasus_gen.splats.colour import blend_colour, shade_lambert, transform_colour
+from pegasus_gen.splats.colour import (
+    blend_colour,
+    shade_lambert,
+    shade_specular,
+    smooth_normals,
+    transform_colour,
+)
 
 # random streams of a scene besides its plan's (seeded [seed, scene_id]): [seed, scene_id, stream, ...], so
 # switching shadows or randomisation on changes no object, pose or camera
@@ -222,12 +229,12 @@ def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray) -> li
 class SceneLooks:
     """A scene's colour transforms [3, 3] (the environment's tint and each kept object instance's, in order),
     the texture painted over its environment, if any: (points [N, 3] -> rgb [N, 3], blend weight), and the
-    light on its objects, if any: (direction [3] towards it, world; ambient share)."""
+    light on its objects, if any."""
 
     environment: np.ndarray
     objects: list[np.ndarray]
     texture: tuple[Callable, float] | None
-    light: tuple[np.ndarray, float] | None = None
+    light: ObjectLight | None = None
 
 
 def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | None:
@@ -256,11 +263,25 @@ def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateCo
         environment = transform_colour(environment, looks.environment)
         placed = [transform_colour(cloud, M) for cloud, M in zip(placed, looks.objects)]
         if looks.light is not None:
-            placed = [shade_lambert(cloud, poses[i][:3, 3], *looks.light) for cloud, i in zip(placed, kept)]
+            placed = [shade_lambert(cloud, poses[i][:3, 3], looks.light.direction, looks.light.ambient)
+                      for cloud, i in zip(placed, kept)]
     if not cfg.shadows.enabled:
         return environment, placed
     meshes = [occluder(plan.objects[i].surface).copy().apply_transform(poses[i]) for i in kept]
     return contact_shadows(environment, placed, meshes, cfg.shadows.params(), rng)
+
+
+def highlighted(placed: list[SplatCloud], normals: list[np.ndarray] | None, looks: SceneLooks | None,
+                T_cam_world: np.ndarray) -> list[SplatCloud]:
+    """The placed objects' clouds (``place_objects``) with the scene light's highlights as the camera T_cam_world
+    [4, 4] sees them, ``normals`` [N, 3] per cloud (world; ``smooth_normals``); as they are without a light or
+    its highlights (``normals`` None)."""
+    if normals is None:
+        return placed
+    eye = -T_cam_world[:3, :3].T @ T_cam_world[:3, 3]
+    light = looks.light
+    return [shade_specular(cloud, n, light.direction, eye, light.specular, light.shininess)
+            for cloud, n in zip(placed, normals)]
 
 
 def camera_image(rgb: np.ndarray, cfg: GenerateConfig, scene_id: int, im_id: int, K: np.ndarray,
@@ -316,7 +337,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     scene_gt, scene_camera, scene_info = {}, {}, {}
     coco_images, coco_instances = [], []
     looks = scene_looks(cfg, scene_id, len(kept))
-    environment, placed = None, None
+    environment, placed, normals = None, None, None
     writer = _Writer()
     try:
         for im_id, T_cam_world in enumerate(cams):
@@ -324,7 +345,11 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             if placed is None or cfg.dynamic:  # static scenes place (and shade) their objects once
                 shading_rng = np.random.default_rng([cfg.seed, scene_id, SHADOW_STREAM, im_id])
                 environment, placed = place_objects(plan, poses, cfg, looks, shading_rng)
-            out = render([environment, *placed], K, T_cam_world, W, H, device=cfg.device, antialiased=cfg.antialiased)
+                normals = None
+                if looks is not None and looks.light is not None and looks.light.specular > 0:
+                    normals = [smooth_normals(cloud, poses[i][:3, 3]) for cloud, i in zip(placed, kept)]
+            shown = highlighted(placed, normals, looks, T_cam_world)
+            out = render([environment, *shown], K, T_cam_world, W, H, device=cfg.device, antialiased=cfg.antialiased)
             centre = np.mean([poses[i][:3, 3] for i in kept], axis=0)
             rgb, quality = camera_image(out.rgb, cfg, scene_id, im_id, K, cams, centre)
             rgb_name = f"rgb/{im_id:06d}.{cfg.image_format}"

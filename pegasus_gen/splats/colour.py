@@ -1,4 +1,5 @@
-"""Colour transforms of splats (gains, hue turns, shading, blends towards a texture), exact on every SH band.
+"""Colour transforms of splats (gains, hue turns, shading, blends towards a texture), exact on every SH band, and
+highlights added to their colour.
 
 A splat's colour seen from direction d is C0 * DC + 0.5 + sum of the higher bands' terms. A linear map M of
 that colour, c' = M c, is DC' = (M (C0 DC + 0.5) - 0.5) / C0 and, each higher coefficient being a colour,
@@ -8,6 +9,7 @@ coefficient' = M coefficient.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from pegasus_gen.splats.cloud import SplatCloud, quat_wxyz_to_rotation
 from pegasus_gen.splats.sh import rgb_to_sh_dc, sh_dc_to_rgb
@@ -60,3 +62,34 @@ def shade_lambert(cloud: SplatCloud, centre: np.ndarray, light: np.ndarray, ambi
     lit = np.maximum(splat_normals(cloud, np.asarray(centre, np.float64)) @ light, 0.0)
     factor = ambient + (1.0 - ambient) * gain * lit
     return transform_colour(cloud, factor[:, None, None] * np.eye(3))
+
+
+def smooth_normals(cloud: SplatCloud, centre: np.ndarray, neighbours: int = 48) -> np.ndarray:
+    """[N, 3] unit normals: ``splat_normals`` about ``centre`` [3] averaged over each splat's ``neighbours`` nearest
+    splats (the splat itself among them): a scanned surface's small bumps smoothed away, as a highlight on a smooth
+    real surface shows it."""
+    n = splat_normals(cloud, np.asarray(centre, np.float64))
+    k = min(neighbours, len(cloud))
+    if k <= 1:
+        return n
+    _, idx = cKDTree(cloud.means).query(cloud.means, k)
+    mean = n[idx].sum(axis=1)
+    length = np.linalg.norm(mean, axis=1, keepdims=True)
+    return np.where(length > 1e-9, mean / np.maximum(length, 1e-9), n)
+
+
+def shade_specular(cloud: SplatCloud, normals: np.ndarray, light: np.ndarray, eye: np.ndarray, strength: float,
+                   shininess: float) -> SplatCloud:
+    """The cloud with the highlight of a distant white light from direction ``light`` [3] (towards the light) seen
+    from ``eye`` [3] (the camera's centre, same frame) added to each splat's colour, the same on every channel:
+    strength * max(0, n . h)^shininess (Blinn-Phong; h the unit half-way vector between the light and the
+    direction to the eye, n the splat's unit normal, ``normals`` [N, 3]), none on a splat facing away from the
+    light. View-dependent: recomputed for every camera."""
+    light = np.asarray(light, np.float64) / np.linalg.norm(light)
+    to_eye = np.asarray(eye, np.float64) - cloud.means
+    half = to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True) + light
+    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    highlight = strength * np.maximum(np.sum(normals * half, axis=1), 0.0) ** shininess * (normals @ light > 0)
+    sh = cloud.sh.astype(np.float64)
+    sh[:, 0] = rgb_to_sh_dc(sh_dc_to_rgb(sh[:, 0]) + highlight[:, None])
+    return cloud.replace(sh=sh)
