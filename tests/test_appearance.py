@@ -231,6 +231,17 @@ def generate_dataset(library, out, *options):
     return generate(config(library, out, *options))
 
 
+def frame_pair(a, b, im: int):
+    """Frame ``im`` of scene 0 in datasets ``a`` and ``b`` ([H, W, 3] float each), the pixels of ``a``'s objects
+    (visible masks) and those at least 7 px from them (past blur and JPEG bleed), [H, W] bool each."""
+    scene = "train_pbr/000000"
+    one, two = (cv2.imread(str(d / scene / "rgb" / f"{im:06d}.jpg")).astype(float) for d in (a, b))
+    masks = [cv2.imread(str(p), 0) > 0 for p in sorted((a / scene / "mask_visib").glob(f"{im:06d}_*.png"))]
+    objects = np.any(masks, axis=0)
+    away = cv2.dilate(objects.astype(np.uint8), np.ones((15, 15), np.uint8)) == 0
+    return one, two, objects, away
+
+
 def test_a_light_on_the_objects_shades_only_the_objects_and_leaves_the_other_draws_alone(library, tmp_path):
     from pegasus_gen.dataset.scene import scene_looks
 
@@ -244,12 +255,8 @@ def test_a_light_on_the_objects_shades_only_the_objects_and_leaves_the_other_dra
     assert all(np.array_equal(a, b) for a, b in zip(dark.objects, lit.objects))
     a, b = (generate_dataset(library, tmp_path / n, *options, f"appearance.object_light={v}")
             for n, v in (("plain", 0), ("shaded", 1)))
-    scene = "train_pbr/000000"
     for im in range(2):
-        one, two = (cv2.imread(str(d / scene / "rgb" / f"{im:06d}.jpg")).astype(float) for d in (a, b))
-        masks = [cv2.imread(str(p), 0) > 0 for p in sorted((a / scene / "mask_visib").glob(f"{im:06d}_*.png"))]
-        objects = np.any(masks, axis=0)
-        away = cv2.dilate(objects.astype(np.uint8), np.ones((15, 15), np.uint8)) == 0  # blur and JPEG bleed
+        one, two, objects, away = frame_pair(a, b, im)
         diff = np.abs(one - two).mean(axis=2)
         assert diff[objects].mean() > 8 and diff[away].mean() < 1.5  # measured: 13.7-19.0 and 0.3-0.5
 
@@ -266,12 +273,8 @@ def test_highlights_brighten_only_the_lit_objects_and_change_no_other_draw(libra
     assert np.array_equal(a.light.direction, b.light.direction) and a.light.ambient == b.light.ambient
     one, two = (generate_dataset(library, tmp_path / n, *options, f"appearance.object_specular=[{v}, {v}]")
                 for n, v in (("plain", 0), ("shiny", 0.8)))
-    scene = "train_pbr/000000"
     for im in range(2):
-        x, y = (cv2.imread(str(d / scene / "rgb" / f"{im:06d}.jpg")).astype(float) for d in (one, two))
-        masks = [cv2.imread(str(p), 0) > 0 for p in sorted((one / scene / "mask_visib").glob(f"{im:06d}_*.png"))]
-        objects = np.any(masks, axis=0)
-        away = cv2.dilate(objects.astype(np.uint8), np.ones((15, 15), np.uint8)) == 0  # blur and JPEG bleed
+        x, y, objects, away = frame_pair(one, two, im)
         brighter = (y - x).mean(axis=2)
         assert np.quantile(brighter[objects], 0.99) > 30 and brighter[objects].mean() > 3  # measured: 61-63, 9-11
         assert np.abs(brighter[away]).mean() < 1.5  # measured: 0.2-0.4
