@@ -88,7 +88,7 @@ def shade_specular(cloud: SplatCloud, normals: np.ndarray, light: np.ndarray, ey
     light = np.asarray(light, np.float64) / np.linalg.norm(light)
     to_eye = np.asarray(eye, np.float64) - cloud.means
     half = to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True) + light
-    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)  # zero only with the eye opposite the light
     highlight = strength * np.maximum(np.sum(normals * half, axis=1), 0.0) ** shininess * (normals @ light > 0)
     sh = cloud.sh.astype(np.float64)
     sh[:, 0] = rgb_to_sh_dc(sh_dc_to_rgb(sh[:, 0]) + highlight[:, None])
