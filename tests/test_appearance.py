@@ -106,6 +106,9 @@ def test_a_highlight_peaks_where_the_surface_mirrors_the_light_to_the_eye_and_is
     eye = np.array([0.0, 0.0, 10.0])
     below = shade_specular(cloud, normals, -up, eye, strength, shininess)  # lit from behind: no highlight
     np.testing.assert_allclose(shlib.sh_dc_to_rgb(below.sh[:, 0]), 0.3, atol=1e-9)
+    at_origin = cloud.replace(means=np.zeros_like(cloud.means))
+    opposite = shade_specular(at_origin, normals, up, -eye, strength, shininess)  # the eye exactly opposite the light
+    np.testing.assert_allclose(shlib.sh_dc_to_rgb(opposite.sh[:, 0]), 0.3, atol=1e-9)
 
 
 def test_smoothed_normals_take_a_bumpy_surface_flat_and_keep_a_sphere_round():
