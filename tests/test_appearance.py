@@ -125,6 +125,16 @@ def test_smoothed_normals_take_a_bumpy_surface_flat_and_keep_a_sphere_round():
     assert np.quantile(np.sum(smooth_normals(cloud, np.zeros(3)) * outward, axis=1), 0.05) > 0.98  # measured 0.998
 
 
+def test_smoothed_normals_turn_with_the_object(rng):
+    # generation computes them once per asset in its own frame and turns them with its pose
+    cloud = random_cloud(rng, 400)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=1).as_matrix()
+    T[:3, 3] = [0.4, -1.2, 0.3]
+    want = smooth_normals(cloud, np.zeros(3)) @ T[:3, :3].T
+    np.testing.assert_allclose(smooth_normals(cloud.transformed(T), T[:3, 3]), want, atol=1e-6)
+
+
 def test_a_hue_turn_keeps_grey_and_brightness_and_turns_the_hue():
     for degrees in (-20.0, 7.0, 90.0):
         R = hue_rotation(degrees)

@@ -71,6 +71,7 @@ class Assets:
     per_spec: list[Asset]  # the object asset of each entry of cfg.objects, in order
     _raycasters: dict = field(default_factory=dict, repr=False)  # obj_id -> MeshRaycaster, built in this process
     _hulls: dict = field(default_factory=dict, repr=False)  # obj_id -> [V, 3] convex hull vertices, ditto
+    _normals: dict = field(default_factory=dict, repr=False)  # asset name -> [N, 3] smoothed splat normals, ditto
 
     @property
     def objects(self) -> dict[int, Asset]:
@@ -90,8 +91,18 @@ class Assets:
             self._hulls[obj_id] = np.asarray(self.objects[obj_id].surface.convex_hull.vertices)
         return self._hulls[obj_id]
 
+    def normals(self, obj: Asset | Distractor) -> np.ndarray:
+        """[N, 3] unit normals of ``obj``'s splats smoothed over their neighbours (``smooth_normals`` about its
+        origin, in its own frame: rotated with the object, since a rigid motion keeps the neighbours), once per
+        process for an asset; a distractor's (new in every scene) computed each time."""
+        if not isinstance(obj, Asset):
+            return smooth_normals(obj.splats, np.zeros(3))
+        if obj.name not in self._normals:
+            self._normals[obj.name] = smooth_normals(obj.splats, np.zeros(3))
+        return self._normals[obj.name]
+
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_raycasters": {}, "_hulls": {}}
+        return {**self.__dict__, "_raycasters": {}, "_hulls": {}, "_normals": {}}
 
 
 def load_assets(cfg: GenerateConfig) -> Assets:
@@ -347,7 +358,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
                 environment, placed = place_objects(plan, poses, cfg, looks, shading_rng)
                 normals = None
                 if looks is not None and looks.light is not None and looks.light.specular > 0:
-                    normals = [smooth_normals(cloud, poses[i][:3, 3]) for cloud, i in zip(placed, kept)]
+                    normals = [assets.normals(objects[i]) @ poses[i][:3, :3].T for i in kept]
             shown = highlighted(placed, normals, looks, T_cam_world)
             out = render([environment, *shown], K, T_cam_world, W, H, device=cfg.device, antialiased=cfg.antialiased)
             centre = np.mean([poses[i][:3, 3] for i in kept], axis=0)
