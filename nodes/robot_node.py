@@ -115,13 +115,22 @@ class RobotNode(Node):
             self.robot.disconnect()
             self.robot.connect()
 
-    def _refuse(self, reason: str) -> None:
+    def _refuse(self, reason: str) -> tuple[str, str]:
         self.results.append("implausible")
-        self.status("failed", IMPLAUSIBLE_DETAIL + reason)
         self.get_logger().warning(f"robot_node: {IMPLAUSIBLE_DETAIL}{reason}; nothing was sent to the robot")
+        return "failed", IMPLAUSIBLE_DETAIL + reason
 
     def _pick(self, pose) -> None:
-        """One attempt for the estimate ``pose`` (a Pose message, camera frame), on its own thread."""
+        """One attempt for the estimate ``pose`` (a Pose message, camera frame), on its own thread; its final status
+        published once the node takes poses again, so that a pose sent on that status is not dropped as busy."""
+        try:
+            state, detail = self._attempt(pose)
+        finally:
+            self.busy.release()
+        self.status(state, detail)
+
+    def _attempt(self, pose) -> tuple[str, str]:
+        """The attempt's work: (its final state, "idle" or "failed", and the status detail)."""
         try:
             self.status("planning")
             try:
@@ -133,13 +142,11 @@ class RobotNode(Node):
             if outcome.result == "implausible":
                 return self._refuse(outcome.detail[len(IMPLAUSIBLE_DETAIL):])
             self.results.append(outcome.result)
-            self.status("idle", outcome.detail)
+            return "idle", outcome.detail
         except PegasusError as exc:
             self.results.append("failed")
-            self.status("failed", str(exc))
             self.get_logger().error(f"robot_node: {exc}")
-        finally:
-            self.busy.release()
+            return "failed", str(exc)
 
     def destroy_node(self) -> None:
         self.robot.disconnect()

@@ -188,6 +188,14 @@ def test_robot_node_sends_nothing_for_an_implausible_estimate_and_moves_for_a_pl
             executor = compat.MultiThreadedExecutor()
             executor.add_node(robot)
             executor.add_node(probe)
+            busy_at_final, publish = [], robot.status_pub.publish
+
+            def recording(msg):  # a final status must mean the node takes the next pose (the loops send it then)
+                if json.loads(msg.data)["state"] in ("idle", "failed"):
+                    busy_at_final.append(robot.busy.locked())
+                publish(msg)
+
+            robot.status_pub.publish = recording
 
             def send(T_base_obj):
                 pose_pub.publish(msgs.PoseStamped(header=msgs.Header(frame_id="camera"), pose=matrix_to_pose_msg(
@@ -214,6 +222,7 @@ def test_robot_node_sends_nothing_for_an_implausible_estimate_and_moves_for_a_pl
             assert status["state"] == "idle" and robot.results[-1] == "pregrasp", statuses
             assert any("moveL" in line for line in motion_lines(sim))
             assert np.abs(np.array(receive.getActualQ()) - q0).max() > 0.05
+            assert busy_at_final == [False] * 3
             executor.shutdown()
         finally:
             for node in (robot, probe):
