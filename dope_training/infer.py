@@ -34,7 +34,7 @@ from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_c
 from dope_training.data import input_scale
 from dope_training.decode import find_keypoints
 from dope_training.keypoints import object_keypoints
-from dope_training.model import check_memory, config_from_dict, memory_estimate
+from dope_training.model import check_memory, config_from_dict, memory_estimate, torch_device
 from dope_training.pnp import solve_pose
 from dope_training.refine import Refinement, refine_multistart
 from dope_training.refine_rgb import RgbRefinement, refine_rgb
@@ -216,9 +216,7 @@ class DopeModel:
 
     def _init_torch(self, path: Path, device: str) -> None:
         state = load_checkpoint(path)
-        if device == "cuda" and not torch.cuda.is_available():
-            raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
-        self.device = torch.device("cuda" if device != "cpu" and torch.cuda.is_available() else "cpu")
+        self.device = torch_device(device)
         self.model = inference_network(model_from_checkpoint(state), self.device)
         self.config = self.model.config
         self.object = TargetObject(**state["object"])

@@ -204,6 +204,16 @@ def memory_estimate(config: ModelConfig, height: int, width: int, batch: int = 1
     return 4 * floats
 
 
+def torch_device(name: str, index: int = 0) -> torch.device:
+    """The torch device of ``name`` ("auto", "cpu" or "cuda"; "auto": CUDA GPU ``index`` when torch sees one, else
+    the CPU); a PegasusError for "cuda" where torch sees no CUDA device."""
+    if name == "cuda" and not torch.cuda.is_available():
+        raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
+    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
+        return torch.device("cuda", index)
+    return torch.device("cpu")
+
+
 def memory_limit(device: torch.device) -> int:
     """Bytes of memory ``device`` has in all: the GPU's for CUDA, else the machine's RAM."""
     if device.type == "cuda":

@@ -50,6 +50,7 @@ from dope_training.model import (
     memory_estimate,
     memory_limit,
     model_config,
+    torch_device,
 )
 from dope_training.train_config import TrainConfig
 from pegasus_gen.errors import PegasusError
@@ -149,14 +150,6 @@ class ShardSampler(torch.utils.data.Sampler):
 def _distributed() -> tuple[int, int, int]:
     """(rank, world size, local rank) from torchrun's environment; (0, 1, 0) without it."""
     return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1)), int(os.environ.get("LOCAL_RANK", 0))
-
-
-def _device(name: str, local_rank: int) -> torch.device:
-    if name == "cuda" and not torch.cuda.is_available():
-        raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
-    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
-        return torch.device("cuda", local_rank)
-    return torch.device("cpu")
 
 
 def read_losses(path: Path) -> list[dict]:
@@ -275,7 +268,7 @@ def _remove_contents(folder: Path) -> None:
 
 
 def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: int) -> Path:
-    device = _device(cfg.device, local_rank)
+    device = torch_device(cfg.device, local_rank)
     if world > 1 and not torch.distributed.is_initialized():
         torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
     if device.type == "cuda":

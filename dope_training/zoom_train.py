@@ -26,6 +26,7 @@ from dope_training.backgrounds import (
     warp_alpha,
 )
 from dope_training.data import Augment, jitter_colour, resolve_objects
+from dope_training.model import torch_device
 from dope_training.refine_rgb import decimated
 from dope_training.zoom import (
     OFFSET_STD,
@@ -111,9 +112,7 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     names = object_names(roots[0])
     obj_id = resolve_objects([cfg.object], model_boxes(roots[0]), names, str(roots[0]))[0]
     name = next((n for n, k in names.items() if k == obj_id), f"obj_{obj_id:06d}")
-    if cfg.device == "cuda" and not torch.cuda.is_available():
-        raise PegasusError("--device cuda asked for, but torch sees no CUDA device")
-    device = torch.device("cuda" if cfg.device != "cpu" and torch.cuda.is_available() else "cpu")
+    device = torch_device(cfg.device)
     g = object_geometry(roots[0], obj_id, cfg.crop_px, cfg.object_px)
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)

@@ -1,5 +1,5 @@
 """The DOPE network: stride-8 outputs of both variants, the original's size, VGG19 weights loading by
-torchvision's layout, the loss, the distance head, and a light model that learns."""
+torchvision's layout, the loss, the distance head, a light model that learns, and the device a name asks for."""
 
 import numpy as np
 import pytest
@@ -14,7 +14,9 @@ from dope_training.model import (
     dope_loss,
     load_vgg19_weights,
     model_config,
+    torch_device,
 )
+from pegasus_gen.errors import PegasusError
 
 
 def test_outputs_are_stride_8_with_9_beliefs_and_16_affinities():
@@ -169,3 +171,15 @@ def test_a_share_of_the_distance_heads_gradient_reaches_the_trunk_and_stages_in_
     for name in full:
         expected = full[name] if name.startswith("distance.") else 0.25 * full[name]
         torch.testing.assert_close(share[name], expected, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("cuda", [False, True])
+def test_the_device_a_name_asks_for_and_cuda_refused_where_torch_sees_none(monkeypatch, cuda):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: cuda)
+    assert torch_device("cpu") == torch.device("cpu")
+    assert torch_device("auto", 1) == (torch.device("cuda", 1) if cuda else torch.device("cpu"))
+    if cuda:
+        assert torch_device("cuda", 2) == torch.device("cuda", 2)
+    else:
+        with pytest.raises(PegasusError, match="--device cuda asked for, but torch sees no CUDA device"):
+            torch_device("cuda")
