@@ -4,9 +4,10 @@ DOPE reads an object's distance from how large it looks in a stride-8 map on whi
 median 2-3 % off, where ADD's 0.1 d asks about 1 % (docs/TRAINING.md). For each estimate the image is cropped
 around the estimate's projected centre (the model box's centre, DOPE's centroid keypoint) and scaled so that the
 object's diameter spans ``object_px`` of a ``crop_px`` crop at the estimated distance; the model's silhouette at the
-estimated pose is rendered into the same crop; a small network (the ImageNet EfficientNet-Lite0 trunk with a fourth
-input channel for the silhouette, and a regression head) reads where the object in the image lies against that
-silhouette: the centre's offset in the crop (in units of ``object_px``) and log(true / estimated distance), and a
+estimated pose is rendered into the same crop (and with the ``colour`` view the model's vertex colours too, shaded as
+under a light at the camera: what the estimate shows, not only where); a small network (the ImageNet EfficientNet-Lite0
+trunk with more input channels for the view, and a regression head) reads where the object in the image lies against
+that view: the centre's offset in the crop (in units of ``object_px``) and log(true / estimated distance), and a
 network trained with ``rotation`` also the turn (a rotation vector in the camera frame, rad) that takes the estimated
 rotation to the true one, about the box centre; without it the rotation is kept. ``ITERATIONS`` looks, each from the
 pose the last one gave.
@@ -14,7 +15,7 @@ pose the last one gave.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -25,6 +26,7 @@ from torch import nn
 
 from dope_training.backbone import OUT_CHANNELS, STEM_CHANNELS, LiteTrunk, load_pretrained
 from pegasus_gen.errors import PegasusError
+from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.silhouette import mesh_coverage
 
 ZOOM_FORMAT = "pegasus-zoom-1"
@@ -35,15 +37,20 @@ ITERATIONS = 2
 OFFSET_STD = np.array([0.04, 0.04, 0.04, 0.12, 0.12, 0.12], np.float32)
 POSITION, WITH_ROTATION = 3, 6  # the network's outputs: the first three offsets, or all six
 SUPERSAMPLE = 4  # the silhouette's antialiasing: coverage of 4 x 4 samples per crop pixel
-INPUT_MEAN = (0.485, 0.456, 0.406, 0.5)  # ImageNet's for RGB, then the silhouette's coverage 0..1
-INPUT_STD = (0.229, 0.224, 0.225, 0.5)
+COLOUR_SUPERSAMPLE = 2  # the colour view's: 2 x 2 rays per crop pixel
+# what is rendered at the estimate beside the crop, and its channels: the silhouette's coverage, then (``colour``)
+# the model's vertex colours, shaded by how squarely each face looks at the camera (ambient 0.35) and times coverage
+VIEW_CHANNELS = {"silhouette": 1, "colour": 4}
+IMAGENET_MEAN, IMAGENET_STD = (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)
+AMBIENT = 0.35
 
 
 @dataclass(frozen=True)
 class ZoomGeometry:
-    """What the crop and the silhouette need of the object and the crop: its mesh (vertices [V, 3] m, model frame,
+    """What the crop and the view need of the object and the crop: its mesh (vertices [V, 3] m, model frame,
     faces [F, 3]; decimated), the model box's centre [3] (m, model frame), its diameter (m), the crop's size and the
-    diameter's length in it (px)."""
+    diameter's length in it (px); for the ``colour`` view its vertex colours [V, 3] (0..1) and a ray caster of the
+    mesh (``coloured``)."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -51,6 +58,21 @@ class ZoomGeometry:
     diameter: float
     crop_px: int
     object_px: float
+    colours: np.ndarray | None = None
+    raycaster: MeshRaycaster | None = field(default=None, compare=False, repr=False)
+
+
+def coloured(g: ZoomGeometry, colours: np.ndarray) -> ZoomGeometry:
+    """``g`` with vertex colours [V, 3] (0..1, one per vertex of ``g.vertices``) and the ray caster the colour view
+    casts at its mesh."""
+    import trimesh
+
+    colours = np.asarray(colours, np.float32)
+    if colours.shape != (len(g.vertices), 3):
+        raise PegasusError(f"{colours.shape} vertex colours for a mesh of {len(g.vertices)} vertices: [V, 3] expected")
+    mesh = trimesh.Trimesh(g.vertices, g.faces, process=False)
+    return ZoomGeometry(g.vertices, g.faces, g.centre, g.diameter, g.crop_px, g.object_px, colours,
+                        MeshRaycaster(mesh))
 
 
 @dataclass(frozen=True)
@@ -76,14 +98,39 @@ def zoom_window(T: np.ndarray, K: np.ndarray, g: ZoomGeometry) -> ZoomWindow:
     return ZoomWindow(A, np.vstack([A, [0.0, 0.0, 1.0]]) @ K, p, uv, float(s))
 
 
-def zoom_input(image: np.ndarray, T: np.ndarray, K: np.ndarray, g: ZoomGeometry) -> tuple[np.ndarray, np.ndarray,
-                                                                                         ZoomWindow]:
+def zoom_input(image: np.ndarray, T: np.ndarray, K: np.ndarray, g: ZoomGeometry,
+               view: str = "silhouette") -> tuple[np.ndarray, np.ndarray, ZoomWindow]:
     """The crop [C, C, 3] uint8 of ``image`` [H, W, 3] uint8 RGB around the estimate T [4, 4] (``zoom_window``),
-    the model's silhouette at T in it [C, C] uint8 (coverage x 255, antialiased), and the window."""
+    the model's ``view`` at T in it [C, C, VIEW_CHANNELS[view]] uint8 (the silhouette's coverage x 255,
+    antialiased; then the ``colour`` view's shaded colours x 255), and the window."""
+    if view not in VIEW_CHANNELS:
+        raise PegasusError(f"a zoom view {view!r}: one of {', '.join(VIEW_CHANNELS)} expected")
     w = zoom_window(T, K, g)
     crop = cv2.warpAffine(image, w.A, (g.crop_px, g.crop_px), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    cover = mesh_coverage(g.vertices, g.faces, w.K, T, g.crop_px, g.crop_px, supersample=SUPERSAMPLE)
-    return crop, np.rint(255 * cover).astype(np.uint8), w
+    channels = [mesh_coverage(g.vertices, g.faces, w.K, T, g.crop_px, g.crop_px, supersample=SUPERSAMPLE)[..., None]]
+    if view == "colour":
+        channels.append(colour_view(g, w.K, T))
+    return crop, np.rint(255 * np.concatenate(channels, axis=-1)).astype(np.uint8), w
+
+
+def colour_view(g: ZoomGeometry, K: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """[C, C, 3] float32 0..1: the model's vertex colours at T [4, 4] seen with the crop's K [3, 3], each face
+    shaded by AMBIENT + (1 - AMBIENT) |its normal's z in the camera| (a light at the camera), black off the model;
+    COLOUR_SUPERSAMPLE^2 rays per pixel averaged."""
+    if g.colours is None or g.raycaster is None:
+        raise PegasusError("the colour view needs the model's vertex colours (zoom.coloured)")
+    s, size = COLOUR_SUPERSAMPLE, g.crop_px
+    K_fine = np.diag([s, s, 1.0]) @ K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]])
+    face, weights = g.raycaster.surface(K_fine, T, size * s, size * s)
+    tri = g.vertices[g.faces]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    shade = (AMBIENT + (1 - AMBIENT) * np.abs(normals @ T[:3, :3].T[:, 2])).astype(np.float32)
+    hit = face >= 0
+    fine = np.zeros((size * s, size * s, 3), np.float32)
+    f = face[hit]
+    fine[hit] = np.einsum("nk,nkc->nc", weights[hit], g.colours[g.faces[f]]) * shade[f, None]
+    return fine.reshape(size, s, size, s, 3).mean(axis=(1, 3))
 
 
 def offsets(T_true: np.ndarray, T_est: np.ndarray, K: np.ndarray, g: ZoomGeometry) -> np.ndarray:
@@ -111,22 +158,25 @@ def moved(T: np.ndarray, K: np.ndarray, g: ZoomGeometry, offset: np.ndarray) -> 
 
 
 class ZoomNet(nn.Module):
-    """crop and silhouette [B, 4, C, C] (0..1; C a multiple of 32) -> the first ``outputs`` offsets [B, outputs]
-    (POSITION or WITH_ROTATION) in units of OFFSET_STD: the EfficientNet-Lite0 trunk (its stem widened to a fourth
-    channel, which starts at zero weight) and two strided convolutions and two linear layers."""
+    """crop and view [B, 3 + VIEW_CHANNELS[view], C, C] (0..1; C a multiple of 32) -> the first ``outputs`` offsets
+    [B, outputs] (POSITION or WITH_ROTATION) in units of OFFSET_STD: the EfficientNet-Lite0 trunk (its stem widened
+    to the view's channels, which start at zero weight) and two strided convolutions and two linear layers."""
 
-    def __init__(self, crop_px: int, outputs: int = POSITION, pretrained: bool = True):
+    def __init__(self, crop_px: int, outputs: int = POSITION, pretrained: bool = True, view: str = "silhouette"):
         super().__init__()
         if crop_px % 32:
             raise PegasusError(f"a zoom crop of {crop_px} px: a multiple of 32 px expected")
         if outputs not in (POSITION, WITH_ROTATION):
             raise PegasusError(f"a zoom network of {outputs} outputs: {POSITION} or {WITH_ROTATION} expected")
-        self.outputs = outputs
+        if view not in VIEW_CHANNELS:
+            raise PegasusError(f"a zoom view {view!r}: one of {', '.join(VIEW_CHANNELS)} expected")
+        self.outputs, self.view = outputs, view
         self.trunk = LiteTrunk()
         if pretrained:
             load_pretrained(self.trunk)
         rgb = self.trunk.stem[1]
-        stem = nn.Conv2d(4, STEM_CHANNELS, rgb.kernel_size, rgb.stride, bias=False)
+        channels = 3 + VIEW_CHANNELS[view]
+        stem = nn.Conv2d(channels, STEM_CHANNELS, rgb.kernel_size, rgb.stride, bias=False)
         with torch.no_grad():
             stem.weight.zero_()
             stem.weight[:, :3] = rgb.weight
@@ -136,16 +186,18 @@ class ZoomNet(nn.Module):
             nn.Conv2d(OUT_CHANNELS, 128, 3, 2, 1, bias=False), nn.BatchNorm2d(128), nn.ReLU(inplace=True),
             nn.Conv2d(128, 64, 3, 2, 1, bias=False), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
             nn.Flatten(), nn.Linear(64 * cells * cells, 256), nn.ReLU(inplace=True), nn.Linear(256, outputs))
-        self.register_buffer("mean", torch.tensor(INPUT_MEAN).view(1, 4, 1, 1))
-        self.register_buffer("std", torch.tensor(INPUT_STD).view(1, 4, 1, 1))
+        # ImageNet's statistics for the crop and the colour view, coverage 0..1 about 0.5
+        mean, std = (*IMAGENET_MEAN, 0.5, *IMAGENET_MEAN), (*IMAGENET_STD, 0.5, *IMAGENET_STD)
+        self.register_buffer("mean", torch.tensor(mean[:channels]).view(1, channels, 1, 1))
+        self.register_buffer("std", torch.tensor(std[:channels]).view(1, channels, 1, 1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.head(self.trunk((x - self.mean) / self.std))
 
 
-def zoom_tensor(crops: np.ndarray, silhouettes: np.ndarray) -> torch.Tensor:
-    """crops [B, C, C, 3] and silhouettes [B, C, C] (uint8) -> the network's input [B, 4, C, C] float 0..1."""
-    x = np.concatenate([crops, silhouettes[..., None]], axis=-1).transpose(0, 3, 1, 2)
+def zoom_tensor(crops: np.ndarray, views: np.ndarray) -> torch.Tensor:
+    """crops [B, C, C, 3] and views [B, C, C, V] (uint8) -> the network's input [B, 3 + V, C, C] float 0..1."""
+    x = np.concatenate([crops, views], axis=-1).transpose(0, 3, 1, 2)
     return torch.from_numpy(np.ascontiguousarray(x)).float() / 255.0
 
 
@@ -162,9 +214,9 @@ class ZoomRefiner:
         for _ in range(iterations):
             if ((self.geometry.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
                 break
-            crop, silhouette, _ = zoom_input(image, T, K, self.geometry)
+            crop, view, _ = zoom_input(image, T, K, self.geometry, self.net.view)
             with torch.no_grad():
-                out = self.net(zoom_tensor(crop[None], silhouette[None]).to(self.device)).cpu().numpy()[0]
+                out = self.net(zoom_tensor(crop[None], view[None]).to(self.device)).cpu().numpy()[0]
             T = moved(T, K, self.geometry, out * OFFSET_STD[:self.net.outputs])
         return T
 
@@ -174,7 +226,8 @@ def save(path: Path, net: ZoomNet, g: ZoomGeometry, obj_id: int, name: str, conf
     torch.save({"format": ZOOM_FORMAT, "obj_id": obj_id, "name": name, "config": config,
                 "vertices": torch.from_numpy(g.vertices), "faces": torch.from_numpy(g.faces),
                 "centre": torch.from_numpy(g.centre), "diameter": g.diameter, "crop_px": g.crop_px,
-                "object_px": g.object_px, "outputs": net.outputs, "model": net.state_dict()}, path)
+                "object_px": g.object_px, "outputs": net.outputs, "view": net.view, "model": net.state_dict(),
+                **({} if g.colours is None else {"colours": torch.from_numpy(g.colours)})}, path)
 
 
 def load(path: str | Path, device: str | torch.device = "cpu") -> ZoomRefiner:
@@ -191,6 +244,12 @@ def load(path: str | Path, device: str | torch.device = "cpu") -> ZoomRefiner:
     g = ZoomGeometry(doc["vertices"].numpy().astype(np.float64), doc["faces"].numpy().astype(np.int64),
                      doc["centre"].numpy().astype(np.float64), float(doc["diameter"]), int(doc["crop_px"]),
                      float(doc["object_px"]))
-    net = ZoomNet(g.crop_px, int(doc.get("outputs", POSITION)), pretrained=False)  # checkpoints before: position
+    if "colours" in doc:
+        g = coloured(g, doc["colours"].numpy())
+    # checkpoints from before the rotation and the colour view: position, silhouette
+    net = ZoomNet(g.crop_px, int(doc.get("outputs", POSITION)), pretrained=False,
+                  view=str(doc.get("view", "silhouette")))
+    if net.view == "colour" and g.colours is None:
+        raise PegasusError(f"{path}: a colour-view zoom checkpoint without the model's colours")
     net.load_state_dict(doc["model"])
     return ZoomRefiner(net.to(device), g, int(doc["obj_id"]), str(doc["name"]), device)

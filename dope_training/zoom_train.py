@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
@@ -34,6 +35,7 @@ from dope_training.zoom import (
     WITH_ROTATION,
     ZoomGeometry,
     ZoomNet,
+    coloured,
     offsets,
     save,
     zoom_input,
@@ -64,22 +66,31 @@ def drawn_estimate(T: np.ndarray, K: np.ndarray, g: ZoomGeometry, cfg: ZoomConfi
     return out
 
 
-def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float) -> ZoomGeometry:
-    """The ZoomGeometry of ``obj_id`` from a BOP dataset's model and models_info.json."""
+def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float, colours: bool = False) -> ZoomGeometry:
+    """The ZoomGeometry of ``obj_id`` from a BOP dataset's model and models_info.json; with ``colours`` the model's
+    vertex colours too (each decimated vertex takes its nearest vertex's), a PegasusError when it has none."""
     diameter = models_info(root)[obj_id].diameter
     if diameter is None:
         raise PegasusError(f"{root}: models_info.json gives obj_id {obj_id} no diameter")
     mesh = read_model(root, obj_id)
     vertices, faces = decimated(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     bbox_min, bbox_size = model_boxes(root)[obj_id]
-    return ZoomGeometry(vertices, faces, bbox_min + bbox_size / 2, diameter, crop_px, object_px)
+    g = ZoomGeometry(vertices, faces, bbox_min + bbox_size / 2, diameter, crop_px, object_px)
+    if not colours:
+        return g
+    if mesh.visual.kind != "vertex":
+        raise PegasusError(f"{root}: the model of obj_id {obj_id} has no vertex colours for the colour view "
+                           f"(--view silhouette needs none)")
+    nearest = cKDTree(np.asarray(mesh.vertices)).query(vertices)[1]
+    return coloured(g, np.asarray(mesh.visual.vertex_colors)[nearest, :3] / 255.0)
 
 
 def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfig, rng: np.random.Generator) -> dict:
-    """The drawn crops of every visible instance: crops [N, C, C, 3], silhouettes [N, C, C], the objects' visible
-    masks in the crop [N, C, C] (uint8 coverage x 255, for photo backgrounds) and offsets [N, 6]."""
+    """The drawn crops of every visible instance: crops [N, C, C, 3], the model's views at the estimates [N, C, C, V]
+    (``zoom_input``), the objects' visible masks in the crop [N, C, C] (uint8 coverage x 255, for photo
+    backgrounds) and offsets [N, 6]."""
     frames = [f for root in roots for f in bop_frames(root / cfg.split)]
-    out = {"crops": [], "silhouettes": [], "objects": [], "offsets": []}
+    out = {"crops": [], "views": [], "objects": [], "offsets": []}
     for frame in tqdm(frames, desc="zoom crops", unit="img"):
         mine = [i for i in frame.instances if i.obj_id == obj_id
                 and (1.0 if i.visib_fract is None else i.visib_fract) >= cfg.min_visibility]
@@ -89,10 +100,10 @@ def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfi
         for inst in mine:
             for _ in range(cfg.per_instance):
                 T = drawn_estimate(inst.T, frame.K, g, cfg, rng)
-                crop, silhouette, w = zoom_input(image, T, frame.K, g)
+                crop, view, w = zoom_input(image, T, frame.K, g, cfg.view)
                 objects = np.rint(255 * warp_alpha(union, w.A, g.crop_px))
                 out["crops"].append(crop)
-                out["silhouettes"].append(silhouette)
+                out["views"].append(view)
                 out["objects"].append(objects.astype(np.uint8))
                 out["offsets"].append(offsets(inst.T, T, frame.K, g))
     if not out["crops"]:
@@ -113,7 +124,7 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     obj_id = resolve_objects([cfg.object], model_boxes(roots[0]), names, str(roots[0]))[0]
     name = next((n for n, k in names.items() if k == obj_id), f"obj_{obj_id:06d}")
     device = torch_device(cfg.device)
-    g = object_geometry(roots[0], obj_id, cfg.crop_px, cfg.object_px)
+    g = object_geometry(roots[0], obj_id, cfg.crop_px, cfg.object_px, colours=cfg.view == "colour")
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
     samples = zoom_samples(roots, obj_id, g, cfg, rng)
@@ -121,7 +132,7 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     aug = Augment(blur_px=cfg.blur_px, brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
                   saturation=cfg.colour_jitter, hue_deg=cfg.hue_deg)
     outputs = WITH_ROTATION if cfg.rotation else POSITION
-    net = ZoomNet(cfg.crop_px, outputs).to(device)
+    net = ZoomNet(cfg.crop_px, outputs, view=cfg.view).to(device)
     n = len(samples["crops"])
     batches = max(n // cfg.batch_size, 1)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
@@ -143,7 +154,7 @@ def train_zoom(cfg: ZoomConfig) -> Path:
                 if photos and rng.uniform() < cfg.backgrounds:
                     crop = behind_objects(crop, samples["objects"][i] / 255.0, photo_view(photos, cfg.crop_px, rng))
                 crops.append(jitter_colour(crop, rng, aug))
-            x = zoom_tensor(np.stack(crops), samples["silhouettes"][idx]).to(device)
+            x = zoom_tensor(np.stack(crops), samples["views"][idx]).to(device)
             y = torch.from_numpy(samples["offsets"][idx, :outputs]).to(device) / scale
             loss = (torch.nn.functional.smooth_l1_loss(net(x), y, reduction="none") * weights).mean()
             opt.zero_grad()

@@ -23,6 +23,26 @@ def test_depth_of_a_tilted_plane_is_exact():
     np.testing.assert_allclose(depth, expected, rtol=1e-5, atol=1e-5)
 
 
+def test_the_surface_hit_by_each_pixel_is_where_its_depth_says():
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    K = intrinsics_from_fov(64, 48, 60)
+    T = look_at([0.4, -1.1, 0.7], [0.05, 0.0, 0.02])
+    caster = MeshRaycaster(mesh)
+    face, weights = caster.surface(K, T, 64, 48)
+    depth = caster.depth(K, T, 64, 48)
+    hit = face >= 0
+    assert ((depth > 0) == hit).all() and 0.1 < hit.mean() < 0.9
+    assert (weights[~hit] == 0).all() and (weights[hit] >= -1e-5).all()
+    np.testing.assert_allclose(weights[hit].sum(-1), 1.0, atol=1e-5)
+    # the face's vertices weighted so lie on the pixel's ray at its depth (the camera frame)
+    points = np.einsum("nk,nkc->nc", weights[hit], mesh.vertices[mesh.faces[face[hit]]])
+    cam = points @ T[:3, :3].T + T[:3, 3]
+    v, u = np.nonzero(hit)
+    np.testing.assert_allclose(cam[:, 2], depth[hit], rtol=1e-4)
+    np.testing.assert_allclose(cam[:, 0] / cam[:, 2] * K[0, 0] + K[0, 2], u, atol=1e-3)
+    np.testing.assert_allclose(cam[:, 1] / cam[:, 2] * K[1, 1] + K[1, 2], v, atol=1e-3)
+
+
 def test_view_coverage_is_full_over_a_table_and_partial_towards_its_edge():
     table = trimesh.creation.box((1.2, 0.8, 0.02))
     raycaster = MeshRaycaster(table)

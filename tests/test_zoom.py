@@ -13,18 +13,21 @@ from scipy.spatial.transform import Rotation
 
 from dope_training.infer import DopeModel
 from dope_training.zoom import (
+    OFFSET_STD,
     POSITION,
     WITH_ROTATION,
     ZoomGeometry,
     ZoomNet,
     ZoomRefiner,
+    coloured,
     load,
     moved,
     offsets,
+    save,
     zoom_input,
 )
 from dope_training.zoom_config import ZoomConfig
-from dope_training.zoom_train import drawn_estimate, train_zoom
+from dope_training.zoom_train import drawn_estimate, object_geometry, train_zoom
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames
@@ -56,7 +59,9 @@ def test_the_crop_centres_the_estimate_and_the_diameter_spans_object_px():
         ys, xs = np.mgrid[0:480, 0:640]
         blob = np.exp(-((xs - uv[0]) ** 2 + (ys - uv[1]) ** 2) / (2 * 6.0 ** 2))
         image = np.repeat(np.rint(255 * blob)[..., None], 3, axis=2).astype(np.uint8)
-        crop, silhouette, _ = zoom_input(image, T, K, g)
+        crop, view, _ = zoom_input(image, T, K, g)
+        assert view.shape == (g.crop_px, g.crop_px, 1)
+        silhouette = view[..., 0]
         middle = (g.crop_px - 1) / 2
         weights = crop[..., 0].astype(float)
         cy, cx = (np.mgrid[0:g.crop_px, 0:g.crop_px] * weights).reshape(2, -1).sum(1) / weights.sum()
@@ -128,6 +133,70 @@ def test_a_position_network_keeps_the_rotation_and_a_rotation_network_turns_it()
         assert np.allclose(out[:3, :3], T[:3, :3], atol=1e-12) != turned
     with pytest.raises(PegasusError, match="outputs"):
         ZoomNet(64, 4, pretrained=False)
+
+
+def _halves(g: ZoomGeometry) -> ZoomGeometry:
+    """The ball red where its model x > 0, blue elsewhere."""
+    return coloured(g, np.where(g.vertices[:, :1] > 0, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]]))
+
+
+def test_the_colour_view_shows_the_models_colours_where_its_silhouette_lies_and_turns_with_the_estimate():
+    g = _halves(_ball())
+    image = np.zeros((480, 640, 3), np.uint8)
+    T = np.eye(4)
+    T[:3, 3] = [0.03, -0.02, 0.7]
+    _, view, _ = zoom_input(image, T, K, g, "colour")
+    assert view.shape == (g.crop_px, g.crop_px, 4)
+    cover, colour = view[..., 0] / 255.0, view[..., 1:] / 255.0
+    # the colour lies where the silhouette does: no colour off the model, the colours' sum there within the
+    # shading's range (ambient 0.35 at the rim to 1 facing the camera) times coverage
+    total = colour.sum(-1)
+    assert total[cover == 0].max() <= 1 / 255 and (total[cover == 1] >= 0.35 - 0.02).all()
+    middle = g.crop_px // 2
+    red, blue = colour[middle, middle + 20], colour[middle, middle - 20]  # model x > 0 lies right in the image
+    assert red[0] > 0.8 and red[2] < 0.05 and blue[2] > 0.8 and blue[0] < 0.05, (red, blue)
+    # facing the camera squarely at the middle, towards the rim the faces turn away and darken
+    assert colour[middle, middle + 2].sum() > 0.97 and colour[middle, middle + 40].sum() < 0.8
+    T[:3, :3] = Rotation.from_euler("z", 180, degrees=True).as_matrix()  # turned half about the view axis
+    _, turned, _ = zoom_input(image, T, K, g, "colour")
+    assert turned[middle, middle + 20, 3] > 200 and turned[middle, middle - 20, 1] > 200  # the halves swap
+    np.testing.assert_allclose(turned[..., 0], view[..., 0], atol=1)  # a ball's silhouette: unchanged
+    with pytest.raises(PegasusError, match="vertex colours"):
+        zoom_input(image, T, K, _ball(), "colour")
+    with pytest.raises(PegasusError, match="view"):
+        zoom_input(image, T, K, g, "depth")
+
+
+def test_a_colour_view_network_reads_seven_channels_and_its_checkpoint_keeps_the_colours(tmp_path):
+    g = _halves(_ball(crop_px=64, object_px=44.0))
+    net = ZoomNet(64, WITH_ROTATION, pretrained=False, view="colour")
+    assert net.trunk.stem[1].in_channels == 7 and net(torch.zeros(2, 7, 64, 64)).shape == (2, WITH_ROTATION)
+    save(tmp_path / "z.pt", net, g, 1, "ball", {})
+    refiner = load(tmp_path / "z.pt")
+    assert refiner.net.view == "colour"
+    np.testing.assert_array_equal(refiner.geometry.colours, g.colours)
+    image = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    T = _pose(0, centre=[0.0, 0.0, 0.6])
+    net.eval()
+    crop, view, _ = zoom_input(image, T, K, g, "colour")
+    with torch.no_grad():  # the loaded network gives what the saved one gave
+        expected = net(torch.from_numpy(np.concatenate([crop, view], -1).transpose(2, 0, 1)[None].copy()).float()
+                       / 255.0).numpy()[0]
+    np.testing.assert_allclose(refiner.refine(image, K, T, iterations=1),
+                               moved(T, K, g, expected * OFFSET_STD), atol=1e-6)
+
+
+def test_the_colour_view_needs_a_model_with_vertex_colours(dope_dataset, tmp_path):
+    info = next(iter((dope_dataset / "models").glob("obj_*.ply")))
+    obj_id = int(info.stem.split("_")[1])
+    g = object_geometry(dope_dataset, obj_id, 64, 44.0, colours=True)
+    assert g.colours.shape == (len(g.vertices), 3) and g.colours.std() > 0.01  # the model's own colours
+    root = tmp_path / "plain"
+    (root / "models").mkdir(parents=True)
+    (root / "models" / "models_info.json").write_text((dope_dataset / "models" / "models_info.json").read_text())
+    trimesh.creation.box((0.1, 0.1, 0.1)).export(root / "models" / info.name)  # no colours
+    with pytest.raises(PegasusError, match="no vertex colours"):
+        object_geometry(root, obj_id, 64, 44.0, colours=True)
 
 
 @pytest.fixture(scope="module")

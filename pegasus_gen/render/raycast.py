@@ -23,16 +23,24 @@ class MeshRaycaster:
     def depth(self, K: np.ndarray, T_cam_mesh: np.ndarray, width: int, height: int) -> np.ndarray:
         """[H, W] float32 z-depth (mesh units) seen by the pinhole camera ``K`` [3, 3] at ``T_cam_mesh`` [4, 4]
         (mesh frame -> camera, same units); 0 where a pixel's ray misses the mesh. One ray per pixel centre."""
-        R_mesh_cam = np.asarray(T_cam_mesh, np.float64)[:3, :3].T
-        origin = -R_mesh_cam @ np.asarray(T_cam_mesh, np.float64)[:3, 3]
-        # the ray through pixel (u, v), R_mesh_cam [(u - cx) / fx, (v - cy) / fy, 1], is linear in u and v; its unit
-        # z in the camera makes the ray parameter of a hit its z-depth
-        du, dv = R_mesh_cam[:, 0] / K[0, 0], R_mesh_cam[:, 1] / K[1, 1]
-        d0 = R_mesh_cam[:, 2] - K[0, 2] * du - K[1, 2] * dv
-        rows = (np.arange(height)[:, None] * dv + d0).astype(np.float32)  # [H, 3]
-        directions = np.arange(width, dtype=np.float32)[None, :, None] * du.astype(np.float32) + rows[:, None, :]
-        hits = self.cast(origin, directions)
+        hits = self.cast(*_pixel_rays(K, T_cam_mesh, width, height))
         return np.where(np.isfinite(hits), hits, np.float32(0.0))
+
+    def surface(self, K: np.ndarray, T_cam_mesh: np.ndarray, width: int, height: int) -> tuple[np.ndarray,
+                                                                                                np.ndarray]:
+        """What each pixel centre's ray (``depth``'s camera) hits first: the face [H, W] int64 (-1 on a miss) and
+        the hit's barycentric weights [H, W, 3] float32 of the face's three vertices (0 on a miss)."""
+        origin, directions = _pixel_rays(K, T_cam_mesh, width, height)
+        rays = np.empty((height, width, 6), np.float32)
+        rays[..., :3], rays[..., 3:] = origin, directions
+        out = self.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
+        ids = out["primitive_ids"].numpy().astype(np.int64).reshape(height, width)
+        uv = out["primitive_uvs"].numpy().reshape(height, width, 2)
+        miss = ids == o3d.t.geometry.RaycastingScene.INVALID_ID
+        ids[miss] = -1
+        weights = np.stack([1.0 - uv[..., 0] - uv[..., 1], uv[..., 0], uv[..., 1]], axis=-1).astype(np.float32)
+        weights[miss] = 0.0
+        return ids, weights
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """float32 [...] ray parameter t of the first hit of each ray origins + t directions (arrays [..., 3]
@@ -56,3 +64,15 @@ class MeshRaycaster:
         K_coarse[0, 2] += 0.5 * cols / width - 0.5  # keep pixel centres at integer coordinates
         K_coarse[1, 2] += 0.5 * rows / height - 0.5
         return float((self.depth(K_coarse, T_cam_world, cols, rows) > 0).mean())
+
+
+def _pixel_rays(K: np.ndarray, T_cam_mesh: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's origin [3] in the mesh frame and the ray through each pixel centre [H, W, 3] float32 (mesh
+    frame, unit z in the camera: a hit's ray parameter is its z-depth)."""
+    R_mesh_cam = np.asarray(T_cam_mesh, np.float64)[:3, :3].T
+    origin = -R_mesh_cam @ np.asarray(T_cam_mesh, np.float64)[:3, 3]
+    # the ray through pixel (u, v), R_mesh_cam [(u - cx) / fx, (v - cy) / fy, 1], is linear in u and v
+    du, dv = R_mesh_cam[:, 0] / K[0, 0], R_mesh_cam[:, 1] / K[1, 1]
+    d0 = R_mesh_cam[:, 2] - K[0, 2] * du - K[1, 2] * dv
+    rows = (np.arange(height)[:, None] * dv + d0).astype(np.float32)  # [H, 3]
+    return origin, np.arange(width, dtype=np.float32)[None, :, None] * du.astype(np.float32) + rows[:, None, :]
