@@ -3,7 +3,8 @@ dataset's real photos (DOPE alone).
 
 Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 2400] [--epochs 20]
        [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] [--refine-rgb]
-       [--zoom-epochs 8 | --no-zoom] [--generate key=value ...] [--train key=value ...] --out OUT
+       [--zoom-epochs 8 | --no-zoom] [--generate key=value ...] [--train key=value ...] [--zoom-train key=value ...]
+       --out OUT
 
 What it reads of DIR, and nothing else: ``models/obj_*.ply`` (mm, vertex colour: the objects, and the others as
 clutter) and ``models/models_info.json`` (diameter), the split's ``scene_camera.json`` (the real camera's K) and
@@ -27,7 +28,8 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
    (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed), and its zoom network
    (``dope_training.zoom``: a second, zoomed-in look at each estimate that moves its centre and distance;
-   ``--zoom-epochs`` epochs, ``OUT/runs/obj_ID/zoom.pt``, reused when there; ``--no-zoom``: none).
+   ``--zoom-epochs`` epochs and ``--zoom-train`` ZoomConfig fields on top, ``OUT/runs/obj_ID/zoom.pt``, reused when
+   there and trained with the same fields (``zoom.txt`` records them); ``--no-zoom``: none).
 4. Per object, with the zoom network: ``pegasus eval`` figures on the synthetic held-out set and on its
    photo-backed copy (``OUT/held_out_photos``: the same frames with the background photos that training keeps back,
    ``backgrounds.split_photos``, behind their labelled objects: real textures the network never saw), which set
@@ -80,6 +82,7 @@ from dope_training.zoom_train import train_zoom
 from pegasus_gen.assets.demo_library import build_demo_library
 from pegasus_gen.assets.importers import import_mesh
 from pegasus_gen.assets.library import AssetLibrary
+from pegasus_gen.cli.options import config_from_args
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
 from pegasus_gen.errors import PegasusError
@@ -195,6 +198,19 @@ def held_out_photos(folder: Path, held_out: Path, photo_folder: str | None, seed
     return folder
 
 
+def trained_zoom(zoom: Path, cfg: ZoomConfig) -> Path:
+    """The zoom network ``zoom`` of ``cfg``, trained unless one of the same fields is there (one of others is
+    refused; ``zoom``.txt records them; the checkpoint is written when its training ends: one there is
+    finished)."""
+    record, wanted = zoom.with_suffix(".txt"), cfg.model_dump_json(indent=1)
+    if zoom.is_file() and record.is_file() and record.read_text() != wanted:
+        raise PegasusError(f"{zoom} was trained with other fields ({record}); remove it or choose another --out")
+    if not zoom.is_file():
+        train_zoom(cfg)
+        record.write_text(wanted)
+    return zoom
+
+
 def figures(report: dict) -> dict:
     """The figures of one ``evaluate`` report that the table shows."""
     r, top = report["result"], report.get("top_n")
@@ -268,6 +284,8 @@ def main() -> int:
                         help="also score the poses refined against the images (pegasus eval --refine-rgb)")
     parser.add_argument("--generate", nargs="*", default=[], help="generate overrides (key=value) of the data")
     parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields (key=value) on the recipe's")
+    parser.add_argument("--zoom-train", nargs="*", default=[],
+                        help="ZoomConfig fields (key=value) of the zoom network, e.g. rotation=true view=colour")
     args = parser.parse_args()
     root, out = Path(args.real), Path(args.out)
     try:
@@ -278,7 +296,8 @@ def main() -> int:
             or not 0 < args.distance[0] < args.distance[1] < 20):
         raise PegasusError(f"--frames and --held-out-frames >= {FRAMES_PER_SCENE}, --epochs and --zoom-epochs >= 1 "
                            "and 0 < near < far <= 20 m expected")
-    options = parse_options(args.train)
+    options, zoom_options = parse_options(args.train), parse_options(args.zoom_train)
+    config_from_args(ZoomConfig, argparse.Namespace(), data=[str(out)], object="-", **zoom_options)  # refused early
     camera = real_camera(root, args.split)
     models_info = read_json(root / "models" / "models_info.json")
     infos = object_infos(root, models_info, ids)
@@ -330,10 +349,11 @@ def main() -> int:
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         zoom = run / "zoom.pt" if args.zoom else None
-        if zoom is not None and not zoom.is_file():  # written when its training ends: a file there is finished
-            train_zoom(ZoomConfig(data=[str(data)], object=str(i), out=str(zoom), epochs=args.zoom_epochs,
-                                  background_photos=options.get("background_photos"), device=args.device,
-                                  seed=args.seed))
+        if zoom is not None:
+            trained_zoom(zoom, ZoomConfig(**{
+                "data": [str(data)], "object": str(i), "out": str(zoom), "epochs": args.zoom_epochs,
+                "background_photos": options.get("background_photos"), "device": args.device, "seed": args.seed,
+                **zoom_options}))
         times[f"zoom obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto", zoom=zoom)
@@ -365,6 +385,7 @@ def main() -> int:
            "epochs": args.epochs, "zoom_epochs": args.zoom_epochs if args.zoom else None,
            "distance_m": list(args.distance),
            "variant": args.variant, "clutter": clutter, "generate": args.generate, "train": args.train,
+           "zoom_train": args.zoom_train,
            "objects": {str(i): rows[i] for i in ids}, "mean": means["real"],
            "mean_rgb_refined": means.get("real_rgb"), "mean_top_n": means.get("top_n"), "seconds": times,
            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}"}

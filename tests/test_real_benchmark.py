@@ -94,6 +94,7 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     # the zoom network of the cup, trained on the same data, and the poses scored through it
     zoom = torch.load(out / "runs" / "obj_000001" / "zoom.pt", weights_only=True)
     assert zoom["obj_id"] == 1 and zoom["config"]["data"] == [str(out / "data")] and doc["zoom_epochs"] == 1
+    assert json.loads((out / "runs" / "obj_000001" / "zoom.txt").read_text())["epochs"] == 1  # its fields recorded
     # the detection score holds the rule on the held-out frames as rendered and with unseen photos behind them
     held_out = [json.loads((out / f"eval_{kind}" / "obj_000001" / "eval.json").read_text())
                 for kind in ("synthetic", "photo_backed")]
@@ -130,9 +131,27 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     refusal = other.stderr.strip().splitlines()[-1]  # after the library's progress bars: one line, no traceback
     assert other.returncode == 2 and "Traceback" not in other.stderr, other.stderr[-2000:]
     assert refusal.startswith("error: ") and "held_out_photos" in refusal and str(photos) in refusal
+    # a zoom network of other fields is refused, not reused in its place
+    other_zoom = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "16",
+                                 "--held-out-frames", "8", "--epochs", "1", "--zoom-epochs", "1", "--device", "cpu",
+                                 "--out", str(out), "--zoom-train", "view=colour"],
+                                capture_output=True, text=True, timeout=300)
+    refusal = other_zoom.stderr.strip().splitlines()[-1]
+    assert other_zoom.returncode == 2 and "Traceback" not in other_zoom.stderr, other_zoom.stderr[-2000:]
+    assert refusal.startswith("error: ") and "zoom.txt" in refusal
     bad = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "99", "--out",
                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "obj_000099.ply" in bad.stderr
     nowhere = subprocess.run([sys.executable, script, "--real", str(tmp_path / "nowhere"), "--objects", "1", "--out",
                               str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
     assert nowhere.returncode == 2 and nowhere.stderr.strip().count("\n") == 0 and "nowhere" in nowhere.stderr
+
+
+@pytest.mark.parametrize("field", ["view=outline", "no_such_field=1", "rotation"])
+def test_benchmark_refuses_bad_zoom_fields_in_one_line_before_writing_anything(tmp_path, field):
+    out = tmp_path / "bench"
+    bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "real.py"), "--real", str(tmp_path / "real"),
+                          "--objects", "1", "--out", str(out), "--zoom-train", field],
+                         capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0, bad.stderr[-2000:]
+    assert bad.stderr.startswith("error: ") and field.split("=")[0] in bad.stderr and not out.exists()
