@@ -297,7 +297,13 @@ def main() -> int:
         raise PegasusError(f"--frames and --held-out-frames >= {FRAMES_PER_SCENE}, --epochs and --zoom-epochs >= 1 "
                            "and 0 < near < far <= 20 m expected")
     options, zoom_options = parse_options(args.train), parse_options(args.zoom_train)
-    config_from_args(ZoomConfig, argparse.Namespace(), data=[str(out)], object="-", **zoom_options)  # refused early
+    if taken := [k for k in zoom_options if k in ("data", "object", "out", "epochs", "device", "seed")]:
+        raise PegasusError(f"--zoom-train {taken[0]}: set by real.py itself (its data and runs, --zoom-epochs, "
+                           "--device, --seed)")
+    zoom_fields = {"data": [str(out / "data")], "epochs": args.zoom_epochs,
+                   "background_photos": options.get("background_photos"), "device": args.device, "seed": args.seed,
+                   **zoom_options}
+    config_from_args(ZoomConfig, argparse.Namespace(), object=str(ids[0]), **zoom_fields)  # before anything is written
     camera = real_camera(root, args.split)
     models_info = read_json(root / "models" / "models_info.json")
     infos = object_infos(root, models_info, ids)
@@ -350,10 +356,7 @@ def main() -> int:
         t0 = time.monotonic()
         zoom = run / "zoom.pt" if args.zoom else None
         if zoom is not None:
-            trained_zoom(zoom, ZoomConfig(**{
-                "data": [str(data)], "object": str(i), "out": str(zoom), "epochs": args.zoom_epochs,
-                "background_photos": options.get("background_photos"), "device": args.device, "seed": args.seed,
-                **zoom_options}))
+            trained_zoom(zoom, ZoomConfig(**zoom_fields, object=str(i), out=str(zoom)))
         times[f"zoom obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto", zoom=zoom)

@@ -147,7 +147,7 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     assert nowhere.returncode == 2 and nowhere.stderr.strip().count("\n") == 0 and "nowhere" in nowhere.stderr
 
 
-@pytest.mark.parametrize("field", ["view=outline", "no_such_field=1", "rotation"])
+@pytest.mark.parametrize("field", ["view=outline", "no_such_field=1", "rotation", "out=elsewhere.pt"])
 def test_benchmark_refuses_bad_zoom_fields_in_one_line_before_writing_anything(tmp_path, field):
     out = tmp_path / "bench"
     bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "real.py"), "--real", str(tmp_path / "real"),
