@@ -5,12 +5,13 @@ median 2-3 % off, where ADD's 0.1 d asks about 1 % (docs/TRAINING.md). For each 
 around the estimate's projected centre (the model box's centre, DOPE's centroid keypoint) and scaled so that the
 object's diameter spans ``object_px`` of a ``crop_px`` crop at the estimated distance; the model's silhouette at the
 estimated pose is rendered into the same crop (and with the ``colour`` view the model's vertex colours too, shaded as
-under a light at the camera: what the estimate shows, not only where); a small network (the ImageNet EfficientNet-Lite0
-trunk with more input channels for the view, and a regression head) reads where the object in the image lies against
-that view: the centre's offset in the crop (in units of ``object_px``) and log(true / estimated distance), and a
-network trained with ``rotation`` also the turn (a rotation vector in the camera frame, rad) that takes the estimated
-rotation to the true one, about the box centre; without it the rotation is kept. ``ITERATIONS`` looks, each from the
-pose the last one gave.
+under a light at the camera: what the estimate shows, not only where; with the ``normals`` view the model's surface
+normals in the camera frame instead, its shape without the scan's colours); a small network (the ImageNet
+EfficientNet-Lite0 trunk with more input channels for the view, and a regression head) reads where the object in the
+image lies against that view: the centre's offset in the crop (in units of ``object_px``) and log(true / estimated
+distance), and a network trained with ``rotation`` also the turn (a rotation vector in the camera frame, rad) that
+takes the estimated rotation to the true one, about the box centre; without it the rotation is kept. ``ITERATIONS``
+looks, each from the pose the last one gave.
 """
 
 from __future__ import annotations
@@ -37,10 +38,12 @@ ITERATIONS = 2
 OFFSET_STD = np.array([0.04, 0.04, 0.04, 0.12, 0.12, 0.12], np.float32)
 POSITION, WITH_ROTATION = 3, 6  # the network's outputs: the first three offsets, or all six
 SUPERSAMPLE = 4  # the silhouette's antialiasing: coverage of 4 x 4 samples per crop pixel
-COLOUR_SUPERSAMPLE = 2  # the colour view's: 2 x 2 rays per crop pixel
+COLOUR_SUPERSAMPLE = 2  # the colour and normals views': 2 x 2 rays per crop pixel
 # what is rendered at the estimate beside the crop, and its channels: the silhouette's coverage, then (``colour``)
-# the model's vertex colours, shaded by how squarely each face looks at the camera (ambient 0.35) and times coverage
-VIEW_CHANNELS = {"silhouette": 1, "colour": 4}
+# the model's vertex colours, shaded by how squarely each face looks at the camera (ambient 0.35) and times coverage,
+# or (``normals``) the faces' unit normals in the camera frame as (n + 1) / 2, times coverage
+VIEW_CHANNELS = {"silhouette": 1, "colour": 4, "normals": 4}
+SURFACE_VIEWS = ("colour", "normals")  # the views that cast rays at the model's mesh
 IMAGENET_MEAN, IMAGENET_STD = (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)
 AMBIENT = 0.35
 
@@ -49,8 +52,8 @@ AMBIENT = 0.35
 class ZoomGeometry:
     """What the crop and the view need of the object and the crop: its mesh (vertices [V, 3] m, model frame,
     faces [F, 3]; decimated), the model box's centre [3] (m, model frame), its diameter (m), the crop's size and the
-    diameter's length in it (px); for the ``colour`` view its vertex colours [V, 3] (0..1) and a ray caster of the
-    mesh (``coloured``)."""
+    diameter's length in it (px); for the SURFACE_VIEWS a ray caster of the mesh, and for the ``colour`` view its
+    vertex colours [V, 3] (0..1) (``surfaced``)."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -62,14 +65,16 @@ class ZoomGeometry:
     raycaster: MeshRaycaster | None = field(default=None, compare=False, repr=False)
 
 
-def coloured(g: ZoomGeometry, colours: np.ndarray) -> ZoomGeometry:
-    """``g`` with vertex colours [V, 3] (0..1, one per vertex of ``g.vertices``) and the ray caster the colour view
-    casts at its mesh."""
+def surfaced(g: ZoomGeometry, colours: np.ndarray | None = None) -> ZoomGeometry:
+    """``g`` with the ray caster the SURFACE_VIEWS cast at its mesh, and with vertex colours [V, 3] (0..1, one per
+    vertex of ``g.vertices``; the ``colour`` view's) when given."""
     import trimesh
 
-    colours = np.asarray(colours, np.float32)
-    if colours.shape != (len(g.vertices), 3):
-        raise PegasusError(f"{colours.shape} vertex colours for a mesh of {len(g.vertices)} vertices: [V, 3] expected")
+    if colours is not None:
+        colours = np.asarray(colours, np.float32)
+        if colours.shape != (len(g.vertices), 3):
+            raise PegasusError(f"{colours.shape} vertex colours for a mesh of {len(g.vertices)} vertices: [V, 3] "
+                               "expected")
     mesh = trimesh.Trimesh(g.vertices, g.faces, process=False)
     return ZoomGeometry(g.vertices, g.faces, g.centre, g.diameter, g.crop_px, g.object_px, colours,
                         MeshRaycaster(mesh))
@@ -102,34 +107,44 @@ def zoom_input(image: np.ndarray, T: np.ndarray, K: np.ndarray, g: ZoomGeometry,
                view: str = "silhouette") -> tuple[np.ndarray, np.ndarray, ZoomWindow]:
     """The crop [C, C, 3] uint8 of ``image`` [H, W, 3] uint8 RGB around the estimate T [4, 4] (``zoom_window``),
     the model's ``view`` at T in it [C, C, VIEW_CHANNELS[view]] uint8 (the silhouette's coverage x 255,
-    antialiased; then the ``colour`` view's shaded colours x 255), and the window."""
+    antialiased; then the ``colour`` view's shaded colours or the ``normals`` view's normals x 255), and the
+    window."""
     if view not in VIEW_CHANNELS:
         raise PegasusError(f"a zoom view {view!r}: one of {', '.join(VIEW_CHANNELS)} expected")
     w = zoom_window(T, K, g)
     crop = cv2.warpAffine(image, w.A, (g.crop_px, g.crop_px), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     channels = [mesh_coverage(g.vertices, g.faces, w.K, T, g.crop_px, g.crop_px, supersample=SUPERSAMPLE)[..., None]]
-    if view == "colour":
-        channels.append(colour_view(g, w.K, T))
+    if view in SURFACE_VIEWS:
+        channels.append(surface_view(g, w.K, T, view))
     return crop, np.rint(255 * np.concatenate(channels, axis=-1)).astype(np.uint8), w
 
 
-def colour_view(g: ZoomGeometry, K: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """[C, C, 3] float32 0..1: the model's vertex colours at T [4, 4] seen with the crop's K [3, 3], each face
-    shaded by AMBIENT + (1 - AMBIENT) |its normal's z in the camera| (a light at the camera), black off the model;
-    COLOUR_SUPERSAMPLE^2 rays per pixel averaged."""
-    if g.colours is None or g.raycaster is None:
-        raise PegasusError("the colour view needs the model's vertex colours (zoom.coloured)")
+def surface_view(g: ZoomGeometry, K: np.ndarray, T: np.ndarray, view: str) -> np.ndarray:
+    """[C, C, 3] float32 0..1: the model at T [4, 4] seen with the crop's K [3, 3], black off the model:
+    ``colour``, its vertex colours with each face shaded by AMBIENT + (1 - AMBIENT) |its normal's z in the camera| (a
+    light at the camera); ``normals``, each face's unit normal n in the camera frame (turned towards the camera)
+    as (n + 1) / 2; COLOUR_SUPERSAMPLE^2 rays per pixel averaged."""
+    if g.raycaster is None or (view == "colour" and g.colours is None):
+        raise PegasusError(f"the {view} view needs the model's ray caster"
+                           + (" and vertex colours" if view == "colour" else "") + " (zoom.surfaced)")
     s, size = COLOUR_SUPERSAMPLE, g.crop_px
     K_fine = np.diag([s, s, 1.0]) @ K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]])
     face, weights = g.raycaster.surface(K_fine, T, size * s, size * s)
     tri = g.vertices[g.faces]
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-    shade = (AMBIENT + (1 - AMBIENT) * np.abs(normals @ T[:3, :3].T[:, 2])).astype(np.float32)
+    in_camera = normals @ T[:3, :3].T
+    # each face's normal turned towards the camera (a model's faces need not all wind alike)
+    centres = tri.mean(axis=1) @ T[:3, :3].T + T[:3, 3]
+    in_camera *= np.where((in_camera * centres).sum(axis=1) > 0, -1.0, 1.0)[:, None]
     hit = face >= 0
     fine = np.zeros((size * s, size * s, 3), np.float32)
     f = face[hit]
-    fine[hit] = np.einsum("nk,nkc->nc", weights[hit], g.colours[g.faces[f]]) * shade[f, None]
+    if view == "normals":
+        fine[hit] = (in_camera[f] + 1) / 2
+    else:
+        shade = (AMBIENT + (1 - AMBIENT) * np.abs(in_camera[:, 2])).astype(np.float32)
+        fine[hit] = np.einsum("nk,nkc->nc", weights[hit], g.colours[g.faces[f]]) * shade[f, None]
     return fine.reshape(size, s, size, s, 3).mean(axis=(1, 3))
 
 
@@ -186,8 +201,9 @@ class ZoomNet(nn.Module):
             nn.Conv2d(OUT_CHANNELS, 128, 3, 2, 1, bias=False), nn.BatchNorm2d(128), nn.ReLU(inplace=True),
             nn.Conv2d(128, 64, 3, 2, 1, bias=False), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
             nn.Flatten(), nn.Linear(64 * cells * cells, 256), nn.ReLU(inplace=True), nn.Linear(256, outputs))
-        # ImageNet's statistics for the crop and the colour view, coverage 0..1 about 0.5
-        mean, std = (*IMAGENET_MEAN, 0.5, *IMAGENET_MEAN), (*IMAGENET_STD, 0.5, *IMAGENET_STD)
+        # ImageNet's statistics for the crop and the colour view, coverage 0..1 and the normals' (n + 1) / 2 about 0.5
+        surface = (IMAGENET_MEAN, IMAGENET_STD) if view == "colour" else ((0.5,) * 3, (0.5,) * 3)
+        mean, std = (*IMAGENET_MEAN, 0.5, *surface[0]), (*IMAGENET_STD, 0.5, *surface[1])
         self.register_buffer("mean", torch.tensor(mean[:channels]).view(1, channels, 1, 1))
         self.register_buffer("std", torch.tensor(std[:channels]).view(1, channels, 1, 1))
 
@@ -244,8 +260,8 @@ def load(path: str | Path, device: str | torch.device = "cpu") -> ZoomRefiner:
     g = ZoomGeometry(doc["vertices"].numpy().astype(np.float64), doc["faces"].numpy().astype(np.int64),
                      doc["centre"].numpy().astype(np.float64), float(doc["diameter"]), int(doc["crop_px"]),
                      float(doc["object_px"]))
-    if "colours" in doc:
-        g = coloured(g, doc["colours"].numpy())
+    if "colours" in doc or doc.get("view") in SURFACE_VIEWS:
+        g = surfaced(g, doc["colours"].numpy() if "colours" in doc else None)
     # checkpoints from before the rotation and the colour view: position, silhouette
     net = ZoomNet(g.crop_px, int(doc.get("outputs", POSITION)), pretrained=False,
                   view=str(doc.get("view", "silhouette")))

@@ -31,9 +31,10 @@ class ZoomConfig(BaseModel):
                                     "degrees")
     rotation: bool = Field(False, description="also learn the turn back to the true rotation (else the rotation is "
                            "kept)")
-    view: Literal["silhouette", "colour"] = Field("silhouette", description="what is rendered at the estimate "
-                                                  "beside the crop: the model's silhouette, or with colour also its "
-                                                  "vertex colours shaded as under a light at the camera")
+    view: Literal["silhouette", "colour", "normals"] = Field(
+        "silhouette", description="what is rendered at the estimate beside the crop: the model's silhouette, with "
+        "colour also its vertex colours shaded as under a light at the camera, with normals also its surface normals "
+        "in the camera frame")
     min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
     backgrounds: float = Field(0.5, ge=0.0, le=1.0, description="share of the crops with a real photograph behind "
                                "the objects")

@@ -32,12 +32,13 @@ from dope_training.refine_rgb import decimated
 from dope_training.zoom import (
     OFFSET_STD,
     POSITION,
+    SURFACE_VIEWS,
     WITH_ROTATION,
     ZoomGeometry,
     ZoomNet,
-    coloured,
     offsets,
     save,
+    surfaced,
     zoom_input,
     zoom_tensor,
 )
@@ -66,9 +67,11 @@ def drawn_estimate(T: np.ndarray, K: np.ndarray, g: ZoomGeometry, cfg: ZoomConfi
     return out
 
 
-def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float, colours: bool = False) -> ZoomGeometry:
-    """The ZoomGeometry of ``obj_id`` from a BOP dataset's model and models_info.json; with ``colours`` the model's
-    vertex colours too (each decimated vertex takes its nearest vertex's), a PegasusError when it has none."""
+def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float,
+                    view: str = "silhouette") -> ZoomGeometry:
+    """The ZoomGeometry of ``obj_id`` from a BOP dataset's model and models_info.json for the zoom ``view``: the
+    SURFACE_VIEWS' ray caster, and the ``colour`` view's vertex colours of the model (each decimated vertex takes its
+    nearest vertex's), a PegasusError when it has none."""
     diameter = models_info(root)[obj_id].diameter
     if diameter is None:
         raise PegasusError(f"{root}: models_info.json gives obj_id {obj_id} no diameter")
@@ -76,13 +79,15 @@ def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float, col
     vertices, faces = decimated(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     bbox_min, bbox_size = model_boxes(root)[obj_id]
     g = ZoomGeometry(vertices, faces, bbox_min + bbox_size / 2, diameter, crop_px, object_px)
-    if not colours:
+    if view not in SURFACE_VIEWS:
         return g
+    if view == "normals":
+        return surfaced(g)
     if mesh.visual.kind != "vertex":
         raise PegasusError(f"{root}: the model of obj_id {obj_id} has no vertex colours for the colour view "
-                           f"(--view silhouette needs none)")
+                           f"(the silhouette and normals views need none)")
     nearest = cKDTree(np.asarray(mesh.vertices)).query(vertices)[1]
-    return coloured(g, np.asarray(mesh.visual.vertex_colors)[nearest, :3] / 255.0)
+    return surfaced(g, np.asarray(mesh.visual.vertex_colors)[nearest, :3] / 255.0)
 
 
 def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfig, rng: np.random.Generator) -> dict:
@@ -124,7 +129,7 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     obj_id = resolve_objects([cfg.object], model_boxes(roots[0]), names, str(roots[0]))[0]
     name = next((n for n, k in names.items() if k == obj_id), f"obj_{obj_id:06d}")
     device = torch_device(cfg.device)
-    g = object_geometry(roots[0], obj_id, cfg.crop_px, cfg.object_px, colours=cfg.view == "colour")
+    g = object_geometry(roots[0], obj_id, cfg.crop_px, cfg.object_px, cfg.view)
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
     samples = zoom_samples(roots, obj_id, g, cfg, rng)

@@ -19,11 +19,11 @@ from dope_training.zoom import (
     ZoomGeometry,
     ZoomNet,
     ZoomRefiner,
-    coloured,
     load,
     moved,
     offsets,
     save,
+    surfaced,
     zoom_input,
 )
 from dope_training.zoom_config import ZoomConfig
@@ -137,7 +137,7 @@ def test_a_position_network_keeps_the_rotation_and_a_rotation_network_turns_it()
 
 def _halves(g: ZoomGeometry) -> ZoomGeometry:
     """The ball red where its model x > 0, blue elsewhere."""
-    return coloured(g, np.where(g.vertices[:, :1] > 0, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]]))
+    return surfaced(g, np.where(g.vertices[:, :1] > 0, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]]))
 
 
 def test_the_colour_view_shows_the_models_colours_where_its_silhouette_lies_and_turns_with_the_estimate():
@@ -167,6 +167,58 @@ def test_the_colour_view_shows_the_models_colours_where_its_silhouette_lies_and_
         zoom_input(image, T, K, g, "depth")
 
 
+def test_the_normals_view_shows_the_models_surface_facing_the_camera_whatever_its_faces_winding():
+    image = np.zeros((480, 640, 3), np.uint8)
+    T = np.eye(4)
+    T[:3, 3] = [0.0, 0.0, 0.7]
+    g = surfaced(_ball())
+    _, view, _ = zoom_input(image, T, K, g, "normals")
+    assert view.shape == (g.crop_px, g.crop_px, 4)
+    cover, n = view[..., 0] / 255.0, view[..., 1:] / 255.0 * 2 - 1  # back to the normals, times coverage
+    middle = g.crop_px // 2
+    assert (view[cover == 0, 1:] == 0).all()  # nothing off the model
+    # a ball's normal is its point's direction from the centre: towards the camera at the middle, sideways at the
+    # rim (image x right is camera x; the ball's rim lies 44 px from the middle)
+    np.testing.assert_allclose(n[middle, middle], [0, 0, -1], atol=0.05)
+    right, below = n[middle, middle + 40], n[middle + 40, middle]
+    assert right[0] > 0.8 and abs(right[1]) < 0.1 and below[1] > 0.8 and abs(below[0]) < 0.1, (right, below)
+    inside = cover == 1
+    np.testing.assert_allclose(np.linalg.norm(n[inside], axis=-1), 1, atol=0.05)  # unit normals
+    # the same model with every face wound the other way: the same view
+    flipped = surfaced(replace(g, faces=g.faces[:, ::-1].copy(), raycaster=None))
+    _, again, _ = zoom_input(image, T, K, flipped, "normals")
+    np.testing.assert_array_equal(again, view)
+    # a box's face seen squarely, then turned 30 degrees about the camera's y: its normal turns with it
+    box = trimesh.creation.box((0.1, 0.1, 0.1))
+    cube = surfaced(ZoomGeometry(np.asarray(box.vertices), np.asarray(box.faces), np.zeros(3), 0.173, 128, 88.0))
+    _, square, _ = zoom_input(image, T, K, cube, "normals")
+    np.testing.assert_allclose(square[middle, middle, 1:] / 255.0 * 2 - 1, [0, 0, -1], atol=0.02)
+    T[:3, :3] = Rotation.from_euler("y", 30, degrees=True).as_matrix()
+    _, turned, _ = zoom_input(image, T, K, cube, "normals")
+    np.testing.assert_allclose(turned[middle, middle, 1:] / 255.0 * 2 - 1,
+                               [-np.sin(np.radians(30)), 0, -np.cos(np.radians(30))], atol=0.02)
+    with pytest.raises(PegasusError, match="ray caster"):
+        zoom_input(image, T, K, _ball(), "normals")
+
+
+def test_a_normals_view_network_reads_seven_channels_and_its_checkpoint_renders_the_view(tmp_path):
+    g = surfaced(_ball(crop_px=64, object_px=44.0))
+    net = ZoomNet(64, WITH_ROTATION, pretrained=False, view="normals")
+    assert net.trunk.stem[1].in_channels == 7
+    save(tmp_path / "z.pt", net, g, 1, "ball", {})
+    refiner = load(tmp_path / "z.pt")
+    assert refiner.net.view == "normals" and refiner.geometry.colours is None
+    image = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    T = _pose(0, centre=[0.0, 0.0, 0.6])
+    net.eval()
+    crop, view, _ = zoom_input(image, T, K, g, "normals")
+    with torch.no_grad():  # the loaded network, with its own ray caster, gives what the saved one gave
+        expected = net(torch.from_numpy(np.concatenate([crop, view], -1).transpose(2, 0, 1)[None].copy()).float()
+                       / 255.0).numpy()[0]
+    np.testing.assert_allclose(refiner.refine(image, K, T, iterations=1),
+                               moved(T, K, g, expected * OFFSET_STD), atol=1e-6)
+
+
 def test_a_colour_view_network_reads_seven_channels_and_its_checkpoint_keeps_the_colours(tmp_path):
     g = _halves(_ball(crop_px=64, object_px=44.0))
     net = ZoomNet(64, WITH_ROTATION, pretrained=False, view="colour")
@@ -189,14 +241,14 @@ def test_a_colour_view_network_reads_seven_channels_and_its_checkpoint_keeps_the
 def test_the_colour_view_needs_a_model_with_vertex_colours(dope_dataset, tmp_path):
     info = next(iter((dope_dataset / "models").glob("obj_*.ply")))
     obj_id = int(info.stem.split("_")[1])
-    g = object_geometry(dope_dataset, obj_id, 64, 44.0, colours=True)
+    g = object_geometry(dope_dataset, obj_id, 64, 44.0, view="colour")
     assert g.colours.shape == (len(g.vertices), 3) and g.colours.std() > 0.01  # the model's own colours
     root = tmp_path / "plain"
     (root / "models").mkdir(parents=True)
     (root / "models" / "models_info.json").write_text((dope_dataset / "models" / "models_info.json").read_text())
     trimesh.creation.box((0.1, 0.1, 0.1)).export(root / "models" / info.name)  # no colours
     with pytest.raises(PegasusError, match="no vertex colours"):
-        object_geometry(root, obj_id, 64, 44.0, colours=True)
+        object_geometry(root, obj_id, 64, 44.0, view="colour")
 
 
 @pytest.fixture(scope="module")
