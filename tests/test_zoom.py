@@ -1,7 +1,8 @@
 """The zoomed second look (dope_training.zoom): its crop centres the estimate with the object's diameter
 object_px long, its offsets and the move they give are inverses, the drawn estimates spread as configured, a
 position network keeps the rotation and a rotation network turns it, a network trained on a few frames brings
-estimates back, DOPE's poses pass through it with their rotation kept, and bad input is refused."""
+estimates back, DOPE's poses pass through it with their rotation kept, the colour and normals views render the
+model's colours and surface where its silhouette lies, and bad input is refused."""
 
 from dataclasses import replace
 
