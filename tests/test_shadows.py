@@ -69,6 +69,26 @@ def test_objects_are_shaded_by_the_others_not_by_themselves(rng):
     assert (colour(under_roof, up)[lit] < colour(a, up)[lit] - 0.01).all(1).mean() > 0.9
 
 
+def test_only_the_splats_in_reach_are_recomputed_and_they_match_the_whole_cloud_darkened(rng):
+    env = floor(rng, 30_000)
+    meshes = [box_at([-0.3, 0.2, 0.06]), box_at([0.25, -0.1, 0.08], (0.06, 0.2, 0.1))]
+    objects = [random_cloud(rng, 200, center=m.bounding_box.centroid, extent=0.04, labels=(k + 1,))
+               for k, m in enumerate(meshes)]
+    params = shadow_params(radius=0.1, strength=0.6, light_direction=(0.3, 0.2, 1.0))
+    shaded, _ = contact_shadows(env, objects, meshes, params, np.random.default_rng(3))
+    # the reference: every splat's distance to each object's sphere (about its box's middle, holding its vertices)
+    reach = np.zeros(len(env), bool)
+    for m in meshes:
+        centre = m.bounds.mean(axis=0)
+        radius = np.linalg.norm(m.vertices - centre, axis=1).max()
+        reach |= np.linalg.norm(env.means - centre, axis=1) < radius + params.radius
+    assert 0 < reach.sum() < len(env) / 2
+    factor = np.ones(len(env))
+    factor[reach] = 1.0 - params.strength * occlusion(env.means[reach], meshes, params, np.random.default_rng(3))
+    np.testing.assert_allclose(shaded.sh, darken(env, factor).sh, atol=1e-6)  # the whole cloud darkened at once
+    np.testing.assert_array_equal(shaded.sh[~reach], env.sh[~reach])  # the rest bit for bit as it was
+
+
 def test_darkening_scales_the_rendered_colour_in_every_direction(rng):
     cloud = random_cloud(rng, 200, sh_degree=3)
     factor = rng.uniform(0.2, 1.0, len(cloud))

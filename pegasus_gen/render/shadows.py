@@ -132,12 +132,22 @@ def _enclosing_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     return centre, float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
 
 
-def _near(cloud: SplatCloud, spheres: list[tuple[np.ndarray, float]], radius: float) -> np.ndarray:
-    """[N] bool: splats within ``radius`` of any sphere (centre [3], radius)."""
-    near = np.zeros(len(cloud), bool)
-    for centre, r in spheres:
-        near |= np.linalg.norm(cloud.means - centre, axis=1) < r + radius
-    return near
+def _near(points: np.ndarray, spheres: list[tuple[np.ndarray, float]], radius: float) -> np.ndarray:
+    """[K] int64 indices of the points [N, 3] within ``radius`` of any sphere (centre [3], radius), ascending. The
+    spheres' distances are taken only inside the box that holds them all grown by ``radius`` (an environment's
+    hundreds of thousands of splats are mostly outside it)."""
+    if not spheres:
+        return np.zeros(0, np.int64)
+    reach = np.array([r + radius for _, r in spheres])
+    centres = np.array([c for c, _ in spheres])
+    # the box in the points' own precision, rounded outwards: no float64 copy of every point
+    lo = np.nextafter((centres - reach[:, None]).min(axis=0).astype(points.dtype), -np.inf)
+    hi = np.nextafter((centres + reach[:, None]).max(axis=0).astype(points.dtype), np.inf)
+    inside = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+    candidates, near = points[inside], np.zeros(len(inside), bool)
+    for centre, r in zip(centres, reach):
+        near |= np.linalg.norm(candidates - centre, axis=1) < r
+    return inside[near]
 
 
 def contact_shadows(environment: SplatCloud, objects: Sequence[SplatCloud], meshes: Sequence[trimesh.Trimesh],
@@ -148,12 +158,13 @@ def contact_shadows(environment: SplatCloud, objects: Sequence[SplatCloud], mesh
     spheres = [_enclosing_sphere(np.asarray(m.vertices)) for m in meshes]
 
     def shade(cloud: SplatCloud, occluders: list[trimesh.Trimesh], others: list) -> SplatCloud:
-        near = _near(cloud, others, params.radius)
-        if not near.any():
+        near = _near(cloud.means, others, params.radius)
+        if not len(near):
             return cloud
-        factor = np.ones(len(cloud))
-        factor[near] = 1.0 - params.strength * occlusion(cloud.means[near], occluders, params, rng)
-        return darken(cloud, factor)
+        factor = 1.0 - params.strength * occlusion(cloud.means[near], occluders, params, rng)
+        sh = cloud.sh.copy()  # only the near splats' colour changes: the rest are not recomputed
+        sh[near] = darken(cloud.select(near), factor).sh
+        return cloud.replace(sh=sh)
 
     shaded_env = shade(environment, list(meshes), spheres)
     shaded_objects = [shade(cloud, [m for j, m in enumerate(meshes) if j != k],
