@@ -38,7 +38,7 @@ ITERATIONS = 2
 OFFSET_STD = np.array([0.04, 0.04, 0.04, 0.12, 0.12, 0.12], np.float32)
 POSITION, WITH_ROTATION = 3, 6  # the network's outputs: the first three offsets, or all six
 SUPERSAMPLE = 4  # the silhouette's antialiasing: coverage of 4 x 4 samples per crop pixel
-COLOUR_SUPERSAMPLE = 2  # the colour and normals views': 2 x 2 rays per crop pixel
+SURFACE_SUPERSAMPLE = 2  # the SURFACE_VIEWS': 2 x 2 rays per crop pixel
 # what is rendered at the estimate beside the crop, and its channels: the silhouette's coverage, then (``colour``)
 # the model's vertex colours, shaded by how squarely each face looks at the camera (ambient 0.35) and times coverage,
 # or (``normals``) the faces' unit normals in the camera frame as (n + 1) / 2, times coverage
@@ -123,11 +123,11 @@ def surface_view(g: ZoomGeometry, K: np.ndarray, T: np.ndarray, view: str) -> np
     """[C, C, 3] float32 0..1: the model at T [4, 4] seen with the crop's K [3, 3], black off the model:
     ``colour``, its vertex colours with each face shaded by AMBIENT + (1 - AMBIENT) |its normal's z in the camera| (a
     light at the camera); ``normals``, each face's unit normal n in the camera frame (turned towards the camera)
-    as (n + 1) / 2; COLOUR_SUPERSAMPLE^2 rays per pixel averaged."""
+    as (n + 1) / 2; SURFACE_SUPERSAMPLE^2 rays per pixel averaged."""
     if g.raycaster is None or (view == "colour" and g.colours is None):
         raise PegasusError(f"the {view} view needs the model's ray caster"
                            + (" and vertex colours" if view == "colour" else "") + " (zoom.surfaced)")
-    s, size = COLOUR_SUPERSAMPLE, g.crop_px
+    s, size = SURFACE_SUPERSAMPLE, g.crop_px
     K_fine = np.diag([s, s, 1.0]) @ K + np.array([[0, 0, (s - 1) / 2], [0, 0, (s - 1) / 2], [0, 0, 0]])
     face, weights = g.raycaster.surface(K_fine, T, size * s, size * s)
     tri = g.vertices[g.faces]
