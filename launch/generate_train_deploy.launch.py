@@ -32,7 +32,7 @@ def generate_launch_description():
         DeclareLaunchArgument("size", default_value="0", description="training crop, px (0: the variant's)"),
         DeclareLaunchArgument("train_options", default_value="",
                               description="more training settings: key=value ... (pegasus train's, e.g. focal_px=330)"),
-        DeclareLaunchArgument("variant", default_value="light", choices=["light", "full"]),
+        DeclareLaunchArgument("variant", default_value="light", choices=["light", "full", "pretrained"]),
         DeclareLaunchArgument("device", default_value="auto", choices=["auto", "cpu", "cuda"]),
         DeclareLaunchArgument("images", default_value="out/loop/dataset/train_pbr/000000/rgb",
                               description="images the camera node plays"),

@@ -46,7 +46,9 @@ class DemoSettings(BaseModel):
                              "camera's, so objects appear at the size the robot's camera sees them)")
     distance: tuple[float, float] = Field((0.45, 0.85), description="training camera distance range, m")
     elevation_deg: tuple[float, float] = Field((30.0, 70.0), description="training camera elevation range")
-    variant: Literal["full", "light"] = Field(description="DOPE network variant")
+    variant: Literal["full", "light", "pretrained"] = Field(description="DOPE network variant")
+    distance_head: bool = Field(False, description="the network also learns each object's distance from how large "
+                                                   "it looks (pegasus train --distance-head)")
     size: int = Field(gt=0, description="training crop size, px")
     focal_px: float = Field(330.0, ge=0, description="network-input focal length, px")
     lr: float = Field(0.002, gt=0, description="Adam learning rate")
@@ -74,8 +76,8 @@ class DemoSettings(BaseModel):
     @classmethod
     def small(cls) -> "DemoSettings":
         """Fits a 2-core CPU in about 20 minutes."""
-        return cls(scenes=80, frames=12, width=320, height=240, variant="light", size=128, epochs=28, attempts=10,
-                   objects="noodle_cup_red", device="cpu", time_scale=3.0)
+        return cls(scenes=80, frames=12, width=320, height=240, variant="pretrained", distance_head=True, size=128,
+                   epochs=28, attempts=10, objects="noodle_cup_red", device="cpu", time_scale=3.0)
 
     @classmethod
     def full(cls) -> "DemoSettings":
@@ -87,7 +89,8 @@ class DemoSettings(BaseModel):
         """The recipe's TrainConfig fields beyond the launch file's own arguments, as trainer_node's options."""
         axis = "null" if self.symmetry_axis is None else "[" + ",".join(f"{v:g}" for v in self.symmetry_axis) + "]"
         return (f"focal_px={self.focal_px:g} lr={self.lr:g} schedule={self.schedule} "
-                f"peak_weight={self.peak_weight:g} symmetry_axis={axis}")
+                f"peak_weight={self.peak_weight:g} symmetry_axis={axis} "
+                f"distance_head={'true' if self.distance_head else 'false'}")
 
     def dataset_config(self, library: str | Path) -> dict:
         """The training dataset's generation config (``pegasus generate`` YAML keys)."""
@@ -208,7 +211,8 @@ def write_html(out: Path, s: DemoSettings, evaluation: dict, grasp: dict, times:
 <style>body{{font-family:sans-serif;max-width:1000px;margin:auto}} img{{max-width:100%}} td{{padding:2px 10px}}</style>
 </head><body><h1>PEGASUS demo: generate, train, deploy, grasp</h1>
 <p>Settings: {s.scenes} scenes x {s.frames} frames at {s.width}x{s.height} (fx {s.camera_fx:g} px);
-DOPE-{s.variant} on {s.size} px crops at {s.focal_px:g} px focal length, {s.epochs} epochs on {s.device};
+DOPE-{s.variant}{" with a distance head" * s.distance_head} on {s.size} px crops
+at {s.focal_px:g} px focal length, {s.epochs} epochs on {s.device};
 {s.attempts} grasp attempts ({html.escape(s.objects)}) on depth-refined poses.</p>
 <table>{rows}</table>
 <h2>Training</h2><img src="figures/loss.png"><img src="figures/beliefs.png">
