@@ -94,7 +94,8 @@ def main() -> None:
     t_data = time.monotonic() - t0
 
     demo = DemoSettings.small()
-    fields = {"size": demo.size, "epochs": demo.epochs, **parse_options(demo.train_options())} \
+    fields = {"variant": demo.variant, "size": demo.size, "epochs": demo.epochs,
+              **parse_options(demo.train_options())} \
         if args.recipe == "demo" else {}
     fields |= parse_options(args.train)
     if reused:
