@@ -5,7 +5,8 @@ import pytest
 import trimesh
 from conftest import random_cloud
 
-from pegasus_gen.dataset.config import ShadowConfig
+from pegasus_gen.dataset.config import ShadowConfig, load_config
+from pegasus_gen.dataset.scene import shadowed_scene
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
 from pegasus_gen.render.renderer import render
 from pegasus_gen.render.shadows import (
@@ -161,3 +162,16 @@ def test_a_fine_surface_shades_through_a_coarse_occluder_as_it_would_itself():
     # measured: mean |a - b| 0.0001 (one ray of 16 in 0.2 % of the points); a wrong occluder (the box of the
     # sphere's bounds) differs by 0.13 (mean occlusion 0.30 against 0.17)
     assert np.abs(a - b).mean() < 0.01 and abs(a.mean() - b.mean()) < 0.01
+
+
+def test_a_share_of_the_scenes_is_shaded_each_by_its_own_draw():
+    def shaded(*overrides):
+        cfg = load_config(None, list(overrides))
+        return np.array([shadowed_scene(cfg, i) for i in range(400)])
+
+    half = shaded("shadows.share=0.5")
+    assert 0.4 < half.mean() < 0.6  # binomial std 0.025 over 400 scenes
+    assert np.array_equal(half, shaded("shadows.share=0.5"))  # the scene's own draw: the same every time
+    assert 0.2 < np.mean(half != shaded("shadows.share=0.5", "seed=1")) < 0.8  # another seed, other scenes
+    assert shaded().all() and not shaded("shadows.share=0").any()
+    assert not shaded("shadows.enabled=false").any()

@@ -100,6 +100,9 @@ class ShadowConfig(_Strict):
     darkened by the share of the sky (and of an optional key light) the objects hide."""
 
     enabled: bool = True
+    # share of the scenes shaded (drawn per scene): a network that never sees an object without its rendered
+    # contact shadow reads the shadow as part of the object (docs/TRAINING.md, run DEMO-S)
+    share: float = Field(default=1.0, ge=0.0, le=1.0)
     radius: float = Field(default=0.1, gt=0.0, le=2.0)  # m: occluders farther than this along a sky ray do not count
     strength: float = Field(default=0.6, ge=0.0, le=1.0)  # colour x (1 - strength) at full occlusion
     rays: int = Field(default=16, ge=1, le=1024)  # sky rays per splat (spun per splat: overlapping splats average)
@@ -110,7 +113,7 @@ class ShadowConfig(_Strict):
 
     def params(self) -> ShadowParams:
         """The renderer's parameters."""
-        return ShadowParams(**self.model_dump(exclude={"enabled"}))
+        return ShadowParams(**self.model_dump(exclude={"enabled", "share"}))
 
     @model_validator(mode="after")
     def _light(self):

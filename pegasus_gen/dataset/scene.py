@@ -258,11 +258,20 @@ def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | 
                       object_light(cfg.appearance, np.random.default_rng([cfg.seed, scene_id, LIGHT_STREAM])))
 
 
+def shadowed_scene(cfg: GenerateConfig, scene_id: int) -> bool:
+    """Whether scene ``scene_id``'s objects cast contact shadows: ``cfg.shadows.enabled`` and, where its ``share``
+    is under 1, a draw of the scene's own (the other draws of the scene stay as they are)."""
+    shadows = cfg.shadows
+    if not shadows.enabled:
+        return False
+    return shadows.share >= 1.0 or np.random.default_rng([cfg.seed, scene_id, SHADOW_STREAM]).random() < shadows.share
+
+
 def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateConfig, looks: SceneLooks | None,
-                  rng: np.random.Generator) -> tuple[SplatCloud, list[SplatCloud]]:
+                  rng: np.random.Generator, shadowed: bool) -> tuple[SplatCloud, list[SplatCloud]]:
     """The environment's splats and each kept object's splats placed at ``poses`` (targets labelled 1.. in
-    order, distractors 0 as the environment), recoloured by ``looks`` and shaded when ``cfg.shadows`` asks for
-    it (``rng``: the shadow rays' spin)."""
+    order, distractors 0 as the environment), recoloured by ``looks`` and, where ``shadowed`` (``shadowed_scene``),
+    shaded as ``cfg.shadows`` says (``rng``: the shadow rays' spin)."""
     kept = sorted(poses)
     labels = {i: n + 1 for n, i in enumerate(plan.labelled(kept))}
     environment = plan.environment.splats
@@ -276,7 +285,7 @@ def place_objects(plan: ScenePlan, poses: dict[int, np.ndarray], cfg: GenerateCo
         if looks.light is not None:
             placed = [shade_lambert(cloud, poses[i][:3, 3], looks.light.direction, looks.light.ambient)
                       for cloud, i in zip(placed, kept)]
-    if not cfg.shadows.enabled:
+    if not shadowed:
         return environment, placed
     meshes = [occluder(plan.objects[i].surface).copy().apply_transform(poses[i]) for i in kept]
     return contact_shadows(environment, placed, meshes, cfg.shadows.params(), rng)
@@ -348,6 +357,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
     scene_gt, scene_camera, scene_info = {}, {}, {}
     coco_images, coco_instances = [], []
     looks = scene_looks(cfg, scene_id, len(kept))
+    shadowed = shadowed_scene(cfg, scene_id)
     environment, placed, normals = None, None, None
     writer = _Writer()
     try:
@@ -355,7 +365,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
             poses = frame_poses(plan, im_id, cfg.dynamic)
             if placed is None or cfg.dynamic:  # static scenes place (and shade) their objects once
                 shading_rng = np.random.default_rng([cfg.seed, scene_id, SHADOW_STREAM, im_id])
-                environment, placed = place_objects(plan, poses, cfg, looks, shading_rng)
+                environment, placed = place_objects(plan, poses, cfg, looks, shading_rng, shadowed)
                 normals = None
                 if looks is not None and looks.light is not None and looks.light.specular > 0:
                     normals = [assets.normals(objects[i]) @ poses[i][:3, :3].T for i in kept]
