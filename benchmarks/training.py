@@ -94,9 +94,7 @@ def main() -> None:
     t_data = time.monotonic() - t0
 
     demo = DemoSettings.small()
-    fields = {"variant": demo.variant, "size": demo.size, "epochs": demo.epochs,
-              **parse_options(demo.train_options())} \
-        if args.recipe == "demo" else {}
+    fields = demo.train_fields() if args.recipe == "demo" else {}
     fields |= parse_options(args.train)
     if reused:
         out, t_train, rate = reused, None, None

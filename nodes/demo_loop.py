@@ -18,6 +18,7 @@ from typing import Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
+from dope_training.train_config import parse_options
 from nodes.launch import run as run_launch
 from pegasus_gen.errors import PegasusError
 from robot_bridge.cell import SIM_CELL
@@ -93,6 +94,12 @@ class DemoSettings(BaseModel):
         return (f"focal_px={self.focal_px:g} lr={self.lr:g} schedule={self.schedule} "
                 f"peak_weight={self.peak_weight:g} symmetry_axis={axis} "
                 f"distance_head={'true' if self.distance_head else 'false'}")
+
+    def train_fields(self) -> dict:
+        """The recipe as TrainConfig fields (variant, crop size, epochs and ``train_options``), for a training run
+        outside the launch file."""
+        return {"variant": self.variant, "size": self.size, "epochs": self.epochs,
+                **parse_options(self.train_options())}
 
     def dataset_config(self, library: str | Path) -> dict:
         """The training dataset's generation config (``pegasus generate`` YAML keys)."""

@@ -59,3 +59,13 @@ def test_report_shows_the_figures_it_was_given(tmp_path):
     assert "7 of 10" in page and "implausible estimate: 2" in page and "1.2 cm" in page
     assert "17 instances, 3 missed" in page and "4\nestimates rejected" in page
     assert "302 s" in page and f"{458 / 60:.1f} min" in page
+
+
+def test_the_demo_recipe_reaches_a_training_config_whole():
+    from dope_training.train_config import TrainConfig
+
+    s = DemoSettings.small()
+    cfg = TrainConfig(data=["d"], object="noodle_cup_red", **s.train_fields())
+    assert (cfg.variant, cfg.size, cfg.epochs, cfg.distance_head) == (s.variant, s.size, s.epochs, s.distance_head)
+    assert (cfg.focal_px, cfg.lr, cfg.schedule, cfg.peak_weight) == (s.focal_px, s.lr, s.schedule, s.peak_weight)
+    assert tuple(cfg.symmetry_axis) == s.symmetry_axis

@@ -10,7 +10,6 @@ import yaml
 from dope_training.evaluate import evaluate
 from dope_training.infer import DopeModel
 from dope_training.train import TrainConfig, train
-from dope_training.train_config import parse_options
 from nodes.demo_loop import DemoSettings, held_out_overrides
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.generate import generate
@@ -30,9 +29,8 @@ def test_a_short_run_of_the_cpu_recipe_finds_and_places_held_out_cups(library, t
     data = generate(load_config(tmp_path / "config.yaml"))
     held_out = generate(load_config(None, [f"output={tmp_path / 'held_out'}",
                                            *held_out_overrides(library.root, "noodle_cup_red", frames=10)]))
-    run = train(TrainConfig(data=[str(data)], object="noodle_cup_red", out=str(tmp_path / "run"), variant=s.variant,
-                            size=s.size, epochs=EPOCHS, loader_workers=0, device="cpu", seed=0,
-                            **parse_options(s.train_options())))
+    run = train(TrainConfig(data=[str(data)], object="noodle_cup_red", out=str(tmp_path / "run"), loader_workers=0,
+                            device="cpu", seed=0, **(s.train_fields() | {"epochs": EPOCHS})))
     report = evaluate(DopeModel(run / "last.pt"), held_out, "train_pbr", refine=True)
     detected = report["detected"] / report["instances"]
     refined = report["refined"]["ADD-S"]
