@@ -50,3 +50,22 @@ def test_view_coverage_is_full_over_a_table_and_partial_towards_its_edge():
     assert raycaster.view_coverage(K, look_at([0.0, -0.3, 0.5], [0, 0, 0]), 640, 480) == 1.0
     grazing = raycaster.view_coverage(K, look_at([0.0, -0.2, 0.15], [0, 0.6, 0.1]), 640, 480)
     assert 0.05 < grazing < 0.7  # the far edge of the table is in view
+
+
+def test_occlusion_within_a_reach_agrees_with_the_nearest_hit():
+    rng = np.random.default_rng(3)
+    mesh = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=3, radius=0.2),
+                                     trimesh.creation.box((0.1, 0.3, 0.2)).apply_translation((0.35, 0, 0))])
+    caster = MeshRaycaster(mesh)
+    origins = rng.uniform(-0.4, 0.5, (4000, 3))
+    directions = rng.normal(size=(4000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    t = caster.cast(origins, directions)
+    for reach in (0.15, 0.3, np.inf):
+        occluded = caster.occluded(origins, directions, reach)
+        nearest = np.isfinite(t) & (t <= reach)
+        assert 0.05 < nearest.mean() < 0.95  # both answers occur: the comparison can fail
+        # rays that graze an edge may tell apart in the last float bit: none is further than that from its reach
+        differ = occluded != nearest
+        assert differ.sum() <= 2 and np.all(np.abs(t[differ] - reach) < 1e-5)
+    assert caster.occluded(origins[:5, None, :], directions[None, :7]).shape == (5, 7)  # broadcast as cast

@@ -46,12 +46,17 @@ class MeshRaycaster:
         """float32 [...] ray parameter t of the first hit of each ray origins + t directions (arrays [..., 3]
         broadcast against each other, e.g. one origin [3] and directions [N, 3]); inf on a miss (with unit
         directions, t is the distance)."""
-        shape = np.broadcast_shapes(np.shape(origins), np.shape(directions))
-        rays = np.empty((*shape[:-1], 6), np.float32)  # filled in place: no float64 copies of every ray
-        rays[..., :3] = origins
-        rays[..., 3:] = directions
-        hits = self.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))["t_hit"]
-        return hits.numpy().reshape(shape[:-1])
+        rays = _rays(origins, directions)
+        return self.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))["t_hit"].numpy() \
+            .reshape(rays.shape[:-1])
+
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, max_t: float = np.inf) -> np.ndarray:
+        """bool [...]: whether the ray origins + t directions (``cast``'s arrays) hits the mesh at some t <= max_t
+        (inf: anywhere). ``cast``'s t (finite) <= max_t, but Embree stops at the first hit it finds instead of
+        searching for the nearest (3-4x faster on the shadows' sky rays)."""
+        rays = _rays(origins, directions)
+        return self.scene.test_occlusions(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)), tfar=float(max_t)) \
+            .numpy().reshape(rays.shape[:-1])
 
     def view_coverage(self, K: np.ndarray, T_cam_world: np.ndarray, width: int, height: int,
                       samples: tuple[int, int] = (16, 12)) -> float:
@@ -64,6 +69,15 @@ class MeshRaycaster:
         K_coarse[0, 2] += 0.5 * cols / width - 0.5  # keep pixel centres at integer coordinates
         K_coarse[1, 2] += 0.5 * rows / height - 0.5
         return float((self.depth(K_coarse, T_cam_world, cols, rows) > 0).mean())
+
+
+def _rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """[..., 6] float32 rays (origin, direction) of ``origins`` and ``directions`` [..., 3] broadcast together."""
+    shape = np.broadcast_shapes(np.shape(origins), np.shape(directions))
+    rays = np.empty((*shape[:-1], 6), np.float32)  # filled in place: no float64 copies of every ray
+    rays[..., :3] = origins
+    rays[..., 3:] = directions
+    return rays
 
 
 def _pixel_rays(K: np.ndarray, T_cam_mesh: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

@@ -88,7 +88,7 @@ def occluder(surface: trimesh.Trimesh) -> trimesh.Trimesh:
 
 def _blocked_fraction(points: np.ndarray, directions: np.ndarray, scene: MeshRaycaster, max_t: float,
                       rng: np.random.Generator, spin: bool) -> np.ndarray:
-    """[N] fraction of the rays from each point [N, 3] along ``directions`` [R, 3] that hit ``scene`` before
+    """[N] fraction of the rays from each point [N, 3] along ``directions`` [R, 3] (unit) that hit ``scene`` within
     ``max_t``; with ``spin`` each point's set of directions is turned by a random angle about z (no banding
     from one shared set)."""
     n = len(points)
@@ -98,8 +98,7 @@ def _blocked_fraction(points: np.ndarray, directions: np.ndarray, scene: MeshRay
         c, s = np.cos(angle).astype(np.float32), np.sin(angle).astype(np.float32)
         d = np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], np.broadcast_to(d[:, 2], (n, len(d)))],
                      axis=-1)
-    t = scene.cast(np.asarray(points)[:, None, :], d)  # [N, R]: every point with every direction
-    return (t < max_t).mean(axis=1)
+    return scene.occluded(np.asarray(points)[:, None, :], d, max_t).mean(axis=1)  # [N, R]: each point, direction
 
 
 def occlusion(points: np.ndarray, occluders: Sequence[trimesh.Trimesh], params: ShadowParams,
