@@ -31,6 +31,12 @@ first, each peak and each instance's corner at most once. The direction alone ca
 centroids in line with a corner (joining the best-aligned centroid went wrong in 4 % of 300 two-instance
 scenes); the distance does, as upstream's choice of the nearest candidate.
 
+Candidates: each instance also keeps, per corner kind, the peaks of that kind's map within ``CANDIDATE_REACH``
+times its farthest joined corner's distance from its centroid, the joined one first, then the others by belief (at
+most ``CANDIDATES``): where a look-alike part of the object (or another object) draws a corner's peak, the right
+one is often a weaker peak nearby, which the grouping by distance passes over and ``pnp.solve_pose_consensus``
+can pick up.
+
 Score: an instance's detection score is the geometric mean of its centroid's belief and the mean belief of its
 eight corners (0 where not found), and instances under ``min_score`` are dropped once grouped. A look-alike in
 real clutter (docs/TRAINING.md run GG) mostly has weaker corners around its centroid than an instance; on the generated
@@ -41,7 +47,7 @@ scale (a centroid and corners all at 0.6 score 0.6).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -50,15 +56,20 @@ from dope_training.targets import cells_to_pixels
 
 LOG_FLOOR = 1e-3  # beliefs below this count as this in the sub-cell fit
 CORNER_SCORE = 0.1  # peaks (corners, and centroids before scoring) count above this belief (or min_score, if lower)
+CANDIDATES = 3  # a corner's candidate peaks per instance, at most
+CANDIDATE_REACH = 1.5  # candidates within this times the instance's farthest joined corner from its centroid
 
 
 @dataclass
 class Detection:
     """One instance: keypoints [9, 2] in input pixels (corners 0..7 in DOPE's order, NaN where not found,
-    then the centroid) and scores [9] (unblurred belief at each keypoint's peak, 0 where not found)."""
+    then the centroid), scores [9] (unblurred belief at each keypoint's peak, 0 where not found) and per corner
+    its candidate peaks (module docstring), [C, 3] each (x, y input pixels, belief; C <= CANDIDATES, the joined
+    corner first; none where the instance has no corner)."""
 
     keypoints: np.ndarray
     scores: np.ndarray
+    candidates: list[np.ndarray] = field(default_factory=lambda: [np.zeros((0, 3))] * 8)
 
     @property
     def score(self) -> float:
@@ -117,8 +128,8 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
         keypoints = np.full((9, 2), np.nan)
         keypoints[8] = centroid
         detections.append(Detection(keypoints, np.r_[np.zeros(8), score]))
-    for k in range(8):
-        points, cells, scores = find_peaks(beliefs[k], stride, blur_cells, blur_threshold, peak_score)
+    peaks = [find_peaks(beliefs[k], stride, blur_cells, blur_threshold, peak_score) for k in range(8)]
+    for k, (points, cells, scores) in enumerate(peaks):
         pairs = []  # (distance, peak, instance) of every pair whose directions agree
         for p, (point, (i, j)) in enumerate(zip(points, cells)):
             affinity = affinities[2 * k:2 * k + 2, i, j].astype(np.float64)
@@ -136,4 +147,24 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
                 detections[n].keypoints[k] = points[p]
                 detections[n].scores[k] = scores[p]
     kept = [d for d in detections if d.score > min_score]
+    for d in kept:
+        d.candidates = corner_candidates(d.keypoints, [(p, s) for p, _, s in peaks])
     return sorted(kept, key=lambda d: -d.score)
+
+
+def corner_candidates(keypoints: np.ndarray, peaks: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """Per corner kind, [C, 3] (x, y, belief) candidate peaks of the instance whose keypoints [9, 2] are given
+    (module docstring), from each kind's peaks: (points [P, 2], beliefs [P])."""
+    distances = np.linalg.norm(keypoints[:8] - keypoints[8], axis=1)
+    if np.isnan(distances).all():
+        return [np.zeros((0, 3))] * 8
+    reach = CANDIDATE_REACH * np.nanmax(distances)
+    out = []
+    for k, (points, scores) in enumerate(peaks):
+        near = np.linalg.norm(points - keypoints[8], axis=1) < reach if len(points) else np.zeros(0, bool)
+        joined = np.all(points == keypoints[k], axis=1) if np.isfinite(keypoints[k, 0]) else np.zeros(len(points), bool)
+        # the joined corner first, then the others by belief (np.lexsort: the last key is the primary one)
+        order = np.lexsort((-scores, ~joined))
+        order = order[near[order]][:CANDIDATES]
+        out.append(np.column_stack([points[order], scores[order]]).reshape(-1, 3))
+    return out

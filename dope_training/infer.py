@@ -5,9 +5,10 @@ Steps: the image is scaled to the training crops' nominal scale (``data.input_sc
 ``input_focal_px``, or with DOPE's policy its shorter side ``input_short_side``), padded right/bottom to a
 multiple of 8, run; belief peaks are grouped into instances by the affinities (``decode.find_keypoints``); the
 keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5) / scale - 0.5, as cv2.resize
-samples); PnP (``pnp.solve_pose``: SQPnP then Levenberg-Marquardt, keypoints that do not fit the others
-dropped) with the camera K gives the pose; a network with a distance head then moves it onto the ray through
-the detected centroid at the distance the head reads there (``on_centroid_ray``). Missing corners do not drop a
+samples); PnP (``pnp.solve_pose_consensus``: the corners' candidate peaks that best support a pose, then SQPnP and
+Levenberg-Marquardt, keypoints that do not fit the others dropped) with the camera K gives the pose; a network
+with a distance head then moves it onto the ray through the detected centroid at the distance the head reads
+there (``on_centroid_ray``). Missing corners do not drop a
 detection: any 5 of the 9 keypoints (the centroid counts as one) are solved, see ``pnp``. With a depth image,
 each pose is then refined against it (``refine.refine_multistart``), starting from the pose moved onto the ray
 through the detected centroid at the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP
@@ -35,7 +36,7 @@ from dope_training.data import input_scale
 from dope_training.decode import find_keypoints
 from dope_training.keypoints import object_keypoints
 from dope_training.model import check_memory, config_from_dict, memory_estimate, torch_device
-from dope_training.pnp import solve_pose
+from dope_training.pnp import solve_pose_consensus
 from dope_training.refine import Refinement, refine_multistart
 from dope_training.refine_rgb import RgbRefinement, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, off_axis_factor, read_map
@@ -43,6 +44,8 @@ from dope_training.zoom import ZoomRefiner
 from dope_training.zoom import load as load_zoom
 from pegasus_gen.errors import PegasusError
 
+# a candidate peak supports a pose within this many network-input px of its reprojected corner (pnp's consensus)
+CONSENSUS_TAU_PX = 3.0
 NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])  # the object's axes, 1 m ahead
 
 
@@ -276,7 +279,10 @@ class DopeModel:
         poses = []
         for det in find_keypoints(beliefs, affinities, stride=STRIDE, min_score=min_score):
             keypoints = (det.keypoints + 0.5) / [sx, sy] - 0.5
-            T, error = solve_pose(keypoints, self.points, K, dist) or (None, np.nan)
+            candidates = [np.column_stack([(c[:, :2] + 0.5) / [sx, sy] - 0.5, c[:, 2]]) for c in det.candidates]
+            T, error, keypoints = solve_pose_consensus(keypoints, candidates, self.points, K,
+                                                       CONSENSUS_TAU_PX / np.sqrt(sx * sy), dist) \
+                or (None, np.nan, keypoints)
             if T is None and depth_m is None:
                 continue
             if T is not None and distance is not None:

@@ -11,6 +11,14 @@ rose by 0.13-0.36 for six networks). Solutions that put any cuboid point at or b
 rejected. Why 5: over 300 random poses of a 10 cm box at 0.4-0.9 m (f = 600 px), 4 exact keypoints gave a
 wrong pose (up to 176 degrees off) for 1.7 % of them, and with 2 px noise a 95th-percentile rotation error of
 12 degrees against 4.6 with 5 keypoints and 3.1 with all 9.
+
+Consensus over candidate peaks (``solve_pose_consensus``): dropping outliers helps where a few keypoints are wrong,
+not where most of them sit on look-alike parts of the object (a box's corners turned by 90 or 180 degrees). Each
+corner's candidate peaks (``decode.corner_candidates``) then often hold the right one as a weaker peak. Hypotheses:
+the keypoints as joined, and ``HYPOTHESES`` draws of ``SAMPLE`` corners, each with one of its candidates at random,
+solved with the centroid by SQPnP alone; each scores the beliefs of the candidates lying within ``tau_px`` of its
+reprojected corners (none if the centroid does not reproject within it), and the best one's keypoints are solved
+as above. Draws are seeded: the same input gives the same pose.
 """
 
 from __future__ import annotations
@@ -19,6 +27,8 @@ import cv2
 import numpy as np
 
 MIN_POINTS = 5
+HYPOTHESES = 150  # consensus: drawn hypotheses per instance
+SAMPLE = 5  # consensus: corners per drawn hypothesis (with the centroid)
 MIN_INLIERS = 6  # keypoints kept at least when dropping outliers
 OUTLIER_FRACTION = 0.15  # reprojection error beyond this share of the projected box's diagonal: an outlier
 
@@ -58,3 +68,66 @@ def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist
     if not np.isfinite(T).all() or ((cuboid @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0).any():
         return None
     return T, float(errors[used].mean())
+
+
+def _support(T: np.ndarray, candidates: list[np.ndarray], centroid: np.ndarray, cuboid: np.ndarray, K: np.ndarray,
+             dist: np.ndarray | None, tau_px: float) -> tuple[float, np.ndarray]:
+    """(score, keypoints [9, 2]) of the pose T [4, 4]: the summed belief of the candidates (per corner the one
+    nearest its reprojection, when within ``tau_px``) and those candidates as keypoints (NaN where none, the centroid
+    last); score -1 when the centroid [2] does not reproject within ``tau_px``."""
+    projected = cv2.projectPoints(np.asarray(cuboid, np.float64), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K,
+                                  dist)[0].reshape(-1, 2)
+    keypoints = np.full((9, 2), np.nan)
+    keypoints[8] = centroid
+    if not np.linalg.norm(projected[8] - centroid) <= tau_px:
+        return -1.0, keypoints
+    score = 0.0
+    for k, found in enumerate(candidates):
+        if len(found):
+            d = np.linalg.norm(found[:, :2] - projected[k], axis=1)
+            j = int(np.argmin(d))
+            if d[j] <= tau_px:
+                score += found[j, 2]
+                keypoints[k] = found[j, :2]
+    return score, keypoints
+
+
+def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray], cuboid: np.ndarray, K: np.ndarray,
+                         tau_px: float, dist: np.ndarray | None = None, seed: int = 0
+                         ) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """``solve_pose`` of the keypoints that the best-supported hypothesis over the corners' candidate peaks picks
+    (module docstring): (T_cam_obj [4, 4], mean reprojection error px, the keypoints picked [9, 2]), or None where
+    ``solve_pose`` of the keypoints as joined finds none.
+
+    keypoints_2d [9, 2] as ``solve_pose``'s (the corners as joined, then the centroid); candidates: per corner [C, 3]
+    (x, y px, belief), ``decode.Detection.candidates`` in the same pixels; tau_px: how near a candidate must lie to a
+    reprojected corner to support a pose (px)."""
+    joined = solve_pose(keypoints_2d, cuboid, K, dist)
+    if joined is None:
+        return None
+    alternatives = [k for k, found in enumerate(candidates) if len(found) > 1 or
+                    (len(found) == 1 and not np.allclose(found[0, :2], keypoints_2d[k]))]
+    if not alternatives:
+        return (*joined, keypoints_2d)
+    centroid = keypoints_2d[8]
+    best_score, best = _support(joined[0], candidates, centroid, cuboid, K, dist, tau_px)
+    drawable = [k for k, found in enumerate(candidates) if len(found)]
+    rng = np.random.default_rng(seed)
+    K = np.asarray(K, np.float64)
+    for _ in range(HYPOTHESES if len(drawable) >= SAMPLE else 0):
+        corners = rng.choice(drawable, SAMPLE, replace=False)
+        image = np.array([candidates[k][rng.integers(len(candidates[k])), :2] for k in corners] + [centroid])
+        try:
+            ok, rvec, tvec = cv2.solvePnP(np.ascontiguousarray(cuboid[[*corners, 8]], np.float64), image, K, dist,
+                                          flags=cv2.SOLVEPNP_SQPNP)
+        except cv2.error:
+            continue
+        if not ok:
+            continue
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
+        score, picked = _support(T, candidates, centroid, cuboid, K, dist, tau_px)
+        if score > best_score:
+            best_score, best = score, picked
+    solved = solve_pose(best, cuboid, K, dist) if best_score > -1 else None
+    return (*solved, best) if solved is not None else (*joined, keypoints_2d)

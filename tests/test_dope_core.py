@@ -10,10 +10,10 @@ import onnx
 import pytest
 import torch
 
-from dope_training.decode import find_keypoints, find_peaks
+from dope_training.decode import CANDIDATES, find_keypoints, find_peaks
 from dope_training.export import check_parity, export_onnx
 from dope_training.model import DopeNetwork, ModelConfig, build_model, load_vgg19_weights
-from dope_training.pnp import solve_pose
+from dope_training.pnp import solve_pose, solve_pose_consensus
 from dope_training.targets import make_targets
 from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 
@@ -155,6 +155,74 @@ def test_pnp_drops_keypoints_that_do_not_fit_the_others():
         reference, reference_px = solve_pose(seven, CUBOID, K)
         dt, dr = pose_error(T, reference)
         assert dt < 1e-6 and dr < 1e-4 and error_px == pytest.approx(reference_px)
+
+
+def look_alike(T: np.ndarray) -> np.ndarray:
+    """T [4, 4] turned by 180 degrees about the object's z axis through its box centre: the same box seen."""
+    centre = BOX_MIN + BOX_SIZE / 2
+    flip = np.eye(4)
+    flip[:3, :3] = np.diag([-1.0, -1.0, 1.0])
+    flip[:3, 3] = 2 * centre * [1, 1, 0]  # x -> 2c - x about the centre, in x and y
+    return T @ flip
+
+
+def test_the_consensus_takes_the_weaker_peaks_where_most_corners_joined_a_look_alike():
+    """Five of eight corners joined on the box turned half round (its look-alike: outlier dropping keeps them, they
+    are the majority); each of them has the right peak as a weaker candidate: the consensus poses the object as it
+    is (as PnP of the right peaks: within a degree), where PnP on the corners as joined is half a turn off."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        truth = random_pose(rng)
+        right = project_points(CUBOID, truth, K) + rng.normal(0, 0.3, (9, 2))
+        turned = project_points(CUBOID, look_alike(truth), K)
+        joined = right.copy()
+        wrong = rng.choice(8, 5, replace=False)
+        joined[wrong] = turned[wrong]
+        candidates = [np.array([[*joined[k], 0.6], [*right[k], 0.4]]) if k in wrong else np.array([[*right[k], 0.6]])
+                      for k in range(8)]
+        T, error_px, picked = solve_pose_consensus(joined, candidates, CUBOID, K, tau_px=4.0)
+        np.testing.assert_array_equal(picked, right)  # every corner on its right peak
+        np.testing.assert_allclose(T, solve_pose(right, CUBOID, K)[0], atol=1e-9)
+        assert pose_error(T, truth)[1] < 1.0 and error_px < 1.0
+        assert pose_error(solve_pose(joined, CUBOID, K)[0], truth)[1] > 30
+        # the same answer for the same input: the hypotheses' draws are seeded
+        np.testing.assert_array_equal(solve_pose_consensus(joined, candidates, CUBOID, K, tau_px=4.0)[0], T)
+
+
+def test_the_consensus_without_other_candidates_is_pnp_of_the_corners_as_joined():
+    rng = np.random.default_rng(6)
+    for _ in range(10):
+        keypoints = project_points(CUBOID, random_pose(rng), K) + rng.normal(0, 1.0, (9, 2))
+        keypoints[rng.choice(8, 2, replace=False)] = np.nan  # corners not found have no candidate
+        candidates = [np.array([[*p, 0.5]]) if np.isfinite(p).all() else np.zeros((0, 3)) for p in keypoints[:8]]
+        T, error_px, picked = solve_pose_consensus(keypoints, candidates, CUBOID, K, tau_px=4.0)
+        reference, reference_px = solve_pose(keypoints, CUBOID, K)
+        np.testing.assert_array_equal(T, reference)
+        assert error_px == reference_px and picked is keypoints
+    keypoints[:8] = np.nan
+    assert solve_pose_consensus(keypoints, [np.zeros((0, 3))] * 8, CUBOID, K, tau_px=4.0) is None
+
+
+def test_each_instance_keeps_its_corners_other_peaks_within_reach_as_candidates():
+    """An instance's corner 0 has a second, weaker peak of its kind beside the object and a third far away: the
+    first is its candidate after the corner as joined, the far one is not; the other corners have theirs alone."""
+    Kc = np.array([[250.0, 0, 99.5], [0, 250.0, 99.5], [0, 0, 1]])  # 200 x 200 input, 25 x 25 maps
+    keypoints = project_points(CUBOID, random_pose(np.random.default_rng(7), (-0.01, 0.01), (0.6, 0.7)), Kc)
+    spread = np.linalg.norm(keypoints[:8] - keypoints[8], axis=1).max()
+    beside = keypoints[8] + (keypoints[8] - keypoints[0])  # corner 0 mirrored through the centroid
+    far = keypoints[8] + [0, 3 * spread] if keypoints[8, 1] < 100 else keypoints[8] - [0, 3 * spread]
+    beliefs, affinities = make_targets(keypoints[None], np.ones((1, 9), bool), 200, 200)
+    extra = np.zeros((2, 9, 2))
+    extra[:, 0] = beside, far
+    others = make_targets(extra, np.eye(9, dtype=bool)[[0, 0]], 200, 200)[0][0]
+    beliefs[0] = np.maximum(beliefs[0], 0.5 * others)  # two weaker peaks of corner 0's kind
+    (found,) = find_keypoints(beliefs, affinities)
+    first = found.candidates[0]
+    assert len(first) == 2 and np.linalg.norm(first[0, :2] - keypoints[0]) < 0.5  # joined first
+    assert np.linalg.norm(first[1, :2] - beside) < 0.5 and first[1, 2] < first[0, 2]
+    for k in range(1, 8):
+        assert len(found.candidates[k]) == 1 and np.allclose(found.candidates[k][0, :2], found.keypoints[k])
+    assert all(len(c) <= CANDIDATES for c in found.candidates)
 
 
 def test_pnp_refuses_too_few_keypoints_and_poses_behind_the_camera(monkeypatch):

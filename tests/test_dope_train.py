@@ -443,7 +443,7 @@ def test_a_centroid_pnp_cannot_solve_is_kept_when_depth_confirms_it(dope_dataset
     frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
     image, depth = read_rgb(frame.image), frame.read_depth()
     solved = model.estimate(image, frame.K, depth_m=depth)  # PnP as usual
-    monkeypatch.setattr(dope_training.infer, "solve_pose", lambda *args, **kwargs: None)
+    monkeypatch.setattr(dope_training.infer, "solve_pose_consensus", lambda *args, **kwargs: None)
     assert model.estimate(image, frame.K) == []
     poses = model.estimate(image, frame.K, depth_m=depth)
     assert poses and all(p.T is None and p.refined is not None for p in poses)
