@@ -70,26 +70,35 @@ def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist
     return T, float(errors[used].mean())
 
 
-def _support(T: np.ndarray, candidates: list[np.ndarray], centroid: np.ndarray, cuboid: np.ndarray, K: np.ndarray,
-             dist: np.ndarray | None, tau_px: float) -> tuple[float, np.ndarray]:
-    """(score, keypoints [9, 2]) of the pose T [4, 4]: the summed belief of the candidates (per corner the one
-    nearest its reprojection, when within ``tau_px``) and those candidates as keypoints (NaN where none, the centroid
-    last); score -1 when the centroid [2] does not reproject within ``tau_px``."""
-    projected = cv2.projectPoints(np.asarray(cuboid, np.float64), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K,
-                                  dist)[0].reshape(-1, 2)
-    keypoints = np.full((9, 2), np.nan)
-    keypoints[8] = centroid
-    if not np.linalg.norm(projected[8] - centroid) <= tau_px:
-        return -1.0, keypoints
-    score = 0.0
+
+def _project(cuboid: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
+             dist: np.ndarray | None) -> np.ndarray:
+    """[H, 9, 2] px: ``cuboid`` [9, 3] projected at each pose (rvec [3, 1], tvec [3, 1]); NaN where a point lies at
+    or behind the camera plane."""
+    if dist is not None and np.any(dist):
+        return np.stack([cv2.projectPoints(cuboid, r, t, K, dist)[0].reshape(-1, 2) for r, t in poses])
+    R = np.stack([cv2.Rodrigues(r)[0] for r, _ in poses])
+    cam = cuboid @ R.transpose(0, 2, 1) + np.stack([t.reshape(3) for _, t in poses])[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(cam[..., 2:] > 0, (cam @ K.T)[..., :2] / cam[..., 2:], np.nan)
+
+
+def _support(projected: np.ndarray, candidates: list[np.ndarray], centroid: np.ndarray,
+             tau_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Of each pose's projected keypoints [H, 9, 2]: the summed belief of the candidates lying within ``tau_px`` of
+    their corner's projection (per corner the nearest), -1 where the centroid [2] does not project within
+    ``tau_px``: scores [H]; and the candidate picked per corner, -1 where none: [H, 8] int."""
+    scores = np.zeros(len(projected))
+    picks = np.full((len(projected), 8), -1)
     for k, found in enumerate(candidates):
         if len(found):
-            d = np.linalg.norm(found[:, :2] - projected[k], axis=1)
-            j = int(np.argmin(d))
-            if d[j] <= tau_px:
-                score += found[j, 2]
-                keypoints[k] = found[j, :2]
-    return score, keypoints
+            d = np.linalg.norm(projected[:, k, None, :] - found[None, :, :2], axis=2)  # [H, C]; NaN: behind
+            j = np.argmin(np.nan_to_num(d, nan=np.inf), axis=1)
+            near = np.take_along_axis(d, j[:, None], axis=1)[:, 0] <= tau_px
+            scores += np.where(near, found[j, 2], 0.0)
+            picks[:, k] = np.where(near, j, -1)
+    centred = np.linalg.norm(projected[:, 8] - centroid, axis=1) <= tau_px
+    return np.where(centred, scores, -1.0), picks
 
 
 def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray], cuboid: np.ndarray, K: np.ndarray,
@@ -105,29 +114,33 @@ def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray],
     joined = solve_pose(keypoints_2d, cuboid, K, dist)
     if joined is None:
         return None
-    alternatives = [k for k, found in enumerate(candidates) if len(found) > 1 or
-                    (len(found) == 1 and not np.allclose(found[0, :2], keypoints_2d[k]))]
-    if not alternatives:
+    if not any(len(found) > 1 or (len(found) == 1 and not np.allclose(found[0, :2], keypoints_2d[k]))
+               for k, found in enumerate(candidates)):
+        return (*joined, keypoints_2d)  # nothing to choose from
+    K, cuboid, centroid = np.asarray(K, np.float64), np.asarray(cuboid, np.float64), keypoints_2d[8]
+    poses = [(cv2.Rodrigues(joined[0][:3, :3])[0], joined[0][:3, 3].reshape(3, 1))]
+    drawable = np.array([k for k, found in enumerate(candidates) if len(found)])
+    if len(drawable) >= SAMPLE:
+        rng = np.random.default_rng(seed)
+        corners = drawable[np.argsort(rng.random((HYPOTHESES, len(drawable))), axis=1)[:, :SAMPLE]]  # [H, SAMPLE]
+        counts = np.array([len(c) for c in candidates])
+        picks = (rng.random(corners.shape) * counts[corners]).astype(int)
+        for ks, js in zip(corners, picks):
+            image = np.array([*(candidates[k][j, :2] for k, j in zip(ks, js)), centroid])
+            try:
+                ok, rvec, tvec = cv2.solvePnP(cuboid[[*ks, 8]], image, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+            except cv2.error:
+                continue
+            if ok:
+                poses.append((rvec, tvec))
+    scores, picks = _support(_project(cuboid, poses, K, dist), candidates, centroid, tau_px)
+    best = int(np.argmax(scores))  # the first of the best: the corners as joined on a tie
+    if scores[best] < 0:
         return (*joined, keypoints_2d)
-    centroid = keypoints_2d[8]
-    best_score, best = _support(joined[0], candidates, centroid, cuboid, K, dist, tau_px)
-    drawable = [k for k, found in enumerate(candidates) if len(found)]
-    rng = np.random.default_rng(seed)
-    K = np.asarray(K, np.float64)
-    for _ in range(HYPOTHESES if len(drawable) >= SAMPLE else 0):
-        corners = rng.choice(drawable, SAMPLE, replace=False)
-        image = np.array([candidates[k][rng.integers(len(candidates[k])), :2] for k in corners] + [centroid])
-        try:
-            ok, rvec, tvec = cv2.solvePnP(np.ascontiguousarray(cuboid[[*corners, 8]], np.float64), image, K, dist,
-                                          flags=cv2.SOLVEPNP_SQPNP)
-        except cv2.error:
-            continue
-        if not ok:
-            continue
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
-        score, picked = _support(T, candidates, centroid, cuboid, K, dist, tau_px)
-        if score > best_score:
-            best_score, best = score, picked
-    solved = solve_pose(best, cuboid, K, dist) if best_score > -1 else None
-    return (*solved, best) if solved is not None else (*joined, keypoints_2d)
+    keypoints = np.full((9, 2), np.nan)
+    keypoints[8] = centroid
+    for k, j in enumerate(picks[best]):
+        if j >= 0:
+            keypoints[k] = candidates[k][j, :2]
+    solved = solve_pose(keypoints, cuboid, K, dist)
+    return (*solved, keypoints) if solved is not None else (*joined, keypoints_2d)
