@@ -8,8 +8,8 @@ keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5)
 samples); PnP (``pnp.solve_pose_consensus``: the corners' candidate peaks that best support a pose, then SQPnP and
 Levenberg-Marquardt, keypoints that do not fit the others dropped) with the camera K gives the pose; a network
 with a distance head then moves it onto the ray through the detected centroid at the distance the head reads
-there (``on_centroid_ray``). Missing corners do not drop a
-detection: any 5 of the 9 keypoints (the centroid counts as one) are solved, see ``pnp``. With a depth image,
+there (``on_centroid_ray``). Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid
+counts as one) are solved, see ``pnp``. With a depth image,
 each pose is then refined against it (``refine.refine_multistart``), starting from the pose moved onto the ray
 through the detected centroid at the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP
 cannot solve (too few corners joined it, or they put the object behind the camera) is then not lost: its

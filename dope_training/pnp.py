@@ -70,7 +70,6 @@ def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist
     return T, float(errors[used].mean())
 
 
-
 def _project(cuboid: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
              dist: np.ndarray | None) -> np.ndarray:
     """[H, 9, 2] px: ``cuboid`` [9, 3] projected at each pose (rvec [3, 1], tvec [3, 1]); NaN where a point lies at

@@ -53,7 +53,7 @@ class MeshRaycaster:
     def occluded(self, origins: np.ndarray, directions: np.ndarray, max_t: float = np.inf) -> np.ndarray:
         """bool [...]: whether the ray origins + t directions (``cast``'s arrays) hits the mesh at some t <= max_t
         (inf: anywhere). ``cast``'s t (finite) <= max_t, but Embree stops at the first hit it finds instead of
-        searching for the nearest (3-4x faster on the shadows' sky rays)."""
+        searching for the nearest: 3-4x faster where most rays hit, 1.2x on generated scenes' contact shadows."""
         rays = _rays(origins, directions)
         return self.scene.test_occlusions(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)), tfar=float(max_t)) \
             .numpy().reshape(rays.shape[:-1])
