@@ -147,8 +147,9 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
                 detections[n].keypoints[k] = points[p]
                 detections[n].scores[k] = scores[p]
     kept = [d for d in detections if d.score > min_score]
+    kinds = [(points, scores) for points, _, scores in peaks]
     for d in kept:
-        d.candidates = corner_candidates(d.keypoints, [(p, s) for p, _, s in peaks])
+        d.candidates = corner_candidates(d.keypoints, kinds)
     return sorted(kept, key=lambda d: -d.score)
 
 
@@ -161,8 +162,8 @@ def corner_candidates(keypoints: np.ndarray, peaks: list[tuple[np.ndarray, np.nd
     reach = CANDIDATE_REACH * np.nanmax(distances)
     out = []
     for k, (points, scores) in enumerate(peaks):
-        near = np.linalg.norm(points - keypoints[8], axis=1) < reach if len(points) else np.zeros(0, bool)
-        joined = np.all(points == keypoints[k], axis=1) if np.isfinite(keypoints[k, 0]) else np.zeros(len(points), bool)
+        near = np.linalg.norm(points - keypoints[8], axis=1) < reach  # points [P, 2], P may be 0
+        joined = np.all(points == keypoints[k], axis=1)  # none where the corner was not joined (NaN)
         # the joined corner first, then the others by belief (np.lexsort: the last key is the primary one)
         order = np.lexsort((-scores, ~joined))
         order = order[near[order]][:CANDIDATES]

@@ -276,10 +276,13 @@ class DopeModel:
         beliefs, affinities, distance, (sx, sy) = self.maps(image, K)
         if not self.use_distance_head:
             distance = None
+        def to_image(points: np.ndarray) -> np.ndarray:  # network-input px [..., 2] -> image px
+            return (points + 0.5) / [sx, sy] - 0.5
+
         poses = []
         for det in find_keypoints(beliefs, affinities, stride=STRIDE, min_score=min_score):
-            keypoints = (det.keypoints + 0.5) / [sx, sy] - 0.5
-            candidates = [np.column_stack([(c[:, :2] + 0.5) / [sx, sy] - 0.5, c[:, 2]]) for c in det.candidates]
+            keypoints = to_image(det.keypoints)
+            candidates = [np.column_stack([to_image(c[:, :2]), c[:, 2]]) for c in det.candidates]
             T, error, keypoints = solve_pose_consensus(keypoints, candidates, self.points, K,
                                                        CONSENSUS_TAU_PX / np.sqrt(sx * sy), dist) \
                 or (None, np.nan, keypoints)
