@@ -117,3 +117,23 @@ def test_an_object_outside_the_image_comes_back_unchanged_and_a_grey_image_is_re
     assert np.array_equal(result.T, T) and result.iterations == 0 and result.support == 0.0
     with pytest.raises(PegasusError, match="uint8"):
         refine_rgb(image[..., 0], K, T, vertices, faces)
+
+
+def test_turn_only_turns_towards_the_silhouette_and_keeps_the_centre():
+    vertices, faces = _object()
+    centre = (vertices.min(0) + vertices.max(0)) / 2
+    before, after = [], []
+    for seed in range(4):
+        T = _truth(seed)
+        axis = np.random.default_rng(seed + 200).normal(size=3)
+        start = T.copy()  # turned 10 degrees about the object's centre: the centre where it is
+        start[:3, :3] = Rotation.from_rotvec(np.radians(10) * axis / np.linalg.norm(axis)).as_matrix() @ T[:3, :3]
+        start[:3, 3] += (T[:3, :3] - start[:3, :3]) @ centre
+        image = _photo(vertices, faces, T, seed)
+        result = refine_rgb(image, K, start, vertices, faces, RgbRefineParams(turn_only=True))
+        assert np.allclose(result.T[:3, :3] @ centre + result.T[:3, 3], start[:3, :3] @ centre + start[:3, 3],
+                           atol=1e-9)
+        before.append(Rotation.from_matrix(start[:3, :3] @ T[:3, :3].T).magnitude())
+        after.append(Rotation.from_matrix(result.T[:3, :3] @ T[:3, :3].T).magnitude())
+    # measured: 10 degrees before, 0.1-2.1 after
+    assert all(a < 0.4 * b for a, b in zip(after, before)), np.degrees(after)
