@@ -38,7 +38,8 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
    and the gallery of the worst images); with ``--refine-rgb`` the same again with DOPE's poses refined against
    the images (``pegasus eval --refine-rgb``: the model's silhouette fitted to the photo's colour edges, scored by
-   belief x outline support; RGB alone still; 3-6 more minutes per object on 2 CPU cores) in ``OUT/eval_rgb``,
+   belief x outline support; with the zoom network only turned, its centre and distance kept; RGB alone still; 2-6
+   more minutes per object on 2 CPU cores) in ``OUT/eval_rgb``,
    ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``.
 
 Writes ``OUT/real.json`` (with each step's seconds and the minutes per object: its training and evaluation, and
