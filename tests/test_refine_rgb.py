@@ -1,6 +1,6 @@
 """Refinement against the RGB image: a pose a few degrees and per cent off comes back to the silhouette the image
 shows, the right pose stays (a third of the object hidden too), an edge is found to a fraction of a pixel
-whatever the blur, and bad input is refused."""
+whatever the blur, turning only keeps the object's centre, and bad input is refused."""
 
 import numpy as np
 import pytest
