@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dope_training.model import DopeNetwork, build_model, config_from_dict
+from dope_training.model import DopeNetwork, ModelConfig, build_model, config_from_dict
 from pegasus_gen.errors import PegasusError
 
 CHECKPOINT_FORMAT = 1
@@ -29,8 +29,8 @@ class TargetObject:
     dataset. ``surface_points``/``surface_normals`` [N, 3] (metres, model frame; unit normals): samples of
     the model's surface for depth refinement, None when the training data had no model (DOPE/NDDS folders);
     ``symmetry_axis`` [3]: the axis of a continuous rotational symmetry (model frame), if any; ``keypoints``
-    [9, 3] (metres, model frame): the points the network's 9 keypoints are (``dope_training.keypoints``), None
-    for DOPE's cuboid of the model box."""
+    [K + 1, 3] (metres, model frame): the points the network's keypoints are, the centre last
+    (``dope_training.keypoints``), None for DOPE's cuboid of the model box (K = 8)."""
 
     obj_id: int
     name: str
@@ -43,10 +43,11 @@ class TargetObject:
     keypoints: list[list[float]] | None = None
 
 
-def target_object(doc, where: str) -> TargetObject:
-    """The TargetObject of ``doc`` (its fields as a dict, as checkpoints and ONNX metadata store it); one
-    clear error naming ``where`` for unknown or missing fields, a model box that is not 3 finite numbers
-    (sizes > 0) or surface samples that are not [N, 3] finite numbers."""
+def target_object(doc, where: str, corners: int = 8) -> TargetObject:
+    """The TargetObject of ``doc`` (its fields as a dict, as checkpoints and ONNX metadata store it) for a network
+    that finds ``corners`` object points besides the centre (``ModelConfig.keypoints``); one clear error naming
+    ``where`` for unknown or missing fields, a model box that is not 3 finite numbers (sizes > 0), surface samples
+    that are not [N, 3] finite numbers or keypoints that are not [corners + 1, 3] (none: the cuboid, 8)."""
     try:
         obj = TargetObject(**doc)
         box = np.array([obj.bbox_min, obj.bbox_size], dtype=np.float64)
@@ -58,8 +59,12 @@ def target_object(doc, where: str) -> TargetObject:
         raise PegasusError(f"{where}: the object's model box is not 3 finite numbers (sizes > 0)")
     if any(v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all() for v in surface) or len(surface) == 1:
         raise PegasusError(f"{where}: the object's surface points and normals are not [N, 3] finite numbers")
-    if keypoints is not None and (keypoints.shape != (9, 3) or not np.isfinite(keypoints).all()):
-        raise PegasusError(f"{where}: the object's keypoints are not [9, 3] finite numbers")
+    if keypoints is not None and (keypoints.shape != (corners + 1, 3) or not np.isfinite(keypoints).all()):
+        raise PegasusError(f"{where}: the object's keypoints are not [{corners + 1}, 3] finite numbers (the "
+                           f"network finds {corners} points and the centre)")
+    if keypoints is None and corners != 8:
+        raise PegasusError(f"{where}: the object has no keypoints, and the network finds {corners} points, not the "
+                           "cuboid's 8")
     return obj
 
 
@@ -87,8 +92,8 @@ def load_checkpoint(path: str | Path) -> dict:
                            f"unknown keys: {', '.join(unknown) or 'none'})")
     if not all(isinstance(state[k], int) and state[k] >= 0 for k in ("epoch", "step")):
         raise PegasusError(f"{path}: epoch and step are not counts")
-    _check_weights(state, path)
-    target_object(state["object"], f"{path}: object")
+    config = _check_weights(state, path)
+    target_object(state["object"], f"{path}: object", config.keypoints)
     train_config = state["train_config"] if isinstance(state["train_config"], dict) else {}
     size, focal_px = train_config.get("size"), train_config.get("focal_px", 0.0)
     if not isinstance(size, int) or size <= 0 or not isinstance(focal_px, (int, float)) or not 0 <= focal_px < math.inf:
@@ -97,9 +102,9 @@ def load_checkpoint(path: str | Path) -> dict:
     return state
 
 
-def _check_weights(state: dict, path: Path) -> None:
-    """A PegasusError unless ``state["model"]`` holds exactly the weights, with their shapes, of the network
-    ``state["model_config"]`` describes (compared on torch's meta device: nothing allocated)."""
+def _check_weights(state: dict, path: Path) -> ModelConfig:
+    """``state["model_config"]``'s ModelConfig; a PegasusError unless ``state["model"]`` holds exactly the weights,
+    with their shapes, of the network it describes (compared on torch's meta device: nothing allocated)."""
     config = config_from_dict(state["model_config"], f"{path}: model_config")
     with torch.device("meta"):
         expected = {k: v.shape for k, v in build_model(config).state_dict().items()}
@@ -112,6 +117,7 @@ def _check_weights(state: dict, path: Path) -> None:
                            for what, keys in (("missing", missing), ("unknown", unknown), ("wrong shape", wrong))
                            if keys)
         raise PegasusError(f"{path}: its weights do not fit its model_config ({detail})")
+    return config
 
 
 def model_from_checkpoint(state: dict) -> DopeNetwork:

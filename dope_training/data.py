@@ -1,9 +1,9 @@
-"""Training data for DOPE: BOP datasets (and DOPE/NDDS json folders) -> images with 9 keypoints per
+"""Training data for DOPE: BOP datasets (and DOPE/NDDS json folders) -> images with P keypoints per
 instance -> augmented crops with belief and affinity targets, and distance targets for a distance head.
 
-A sample is one image and its instances of the target objects: the 9 DOPE keypoints (cuboid corners of
-the model's bounding box in DOPE's order, then its centre, or other object points: ``dope_training.keypoints``)
-projected with the GT pose and K, in pixels.
+A sample is one image and its instances of the target objects: the keypoints (DOPE's 9: the cuboid corners of
+the model's bounding box in DOPE's order, then its centre; or other object points, the centre last:
+``dope_training.keypoints``) projected with the GT pose and K, in pixels.
 Instances seen less than ``min_visibility`` (BOP visib_fract) are dropped: their keypoints do not
 become targets.
 
@@ -45,7 +45,7 @@ from pegasus_gen.io.images import read_rgb
 
 @dataclass
 class Sample:
-    """One image: its path, K [3, 3] and per instance the 9 keypoints [9, 2] (px), obj_id, visibility and the
+    """One image: its path, K [3, 3] and per instance its P keypoints [P, 2] (px), obj_id, visibility and the
     depth of its model box's centre (m, camera z; NaN where the data do not say: DOPE/NDDS folders), and the
     visible masks of every labelled instance in it, target or not (BOP's mask_visib; none in DOPE/NDDS folders)."""
 
@@ -106,7 +106,7 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
     """Samples of every image of a BOP split holding at least one visible instance of ``objects``
     (obj_ids or names), and with ``keep_empty`` of the other images too (no keypoints: negative examples);
     with ``symmetry_axis`` [3] (object frame), canonical labels (``canonical_pose``); ``keypoints``: {obj_id:
-    [9, 3] object points (m, model frame)} projected instead of that object's cuboid."""
+    [P, 3] object points (m, model frame), the centre last} projected instead of that object's cuboid."""
     root = Path(root)
     split_dir = root / split
     boxes = model_boxes(root)
@@ -130,7 +130,7 @@ def load_bop(root: str | Path, objects, split: str = "train_pbr", min_visibility
                 sample.keypoints.append(projected)
                 sample.obj_ids.append(inst.obj_id)
                 sample.visibility.append(visib)
-                sample.depths.append(float(T[2, :3] @ points[inst.obj_id][8] + T[2, 3]))
+                sample.depths.append(float(T[2, :3] @ points[inst.obj_id][-1] + T[2, 3]))
         if sample.keypoints or keep_empty:
             samples.append(sample)
     return samples
@@ -254,7 +254,7 @@ def jitter_colour(image: np.ndarray, rng: np.random.Generator, aug: Augment) -> 
 
 
 class DopeDataset(torch.utils.data.Dataset):
-    """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [9, S/8, S/8], affinities [16, S/8, S/8], distance
+    """Samples -> (image [3, S, S] float 0..1 RGB, beliefs [P, S/8, S/8], affinities [2 (P - 1), S/8, S/8], distance
     [1, S/8, S/8] and its weight [1, S/8, S/8]: ``targets.make_distance_targets`` at the crop's focal length; with
     ``off_axis`` of each instance's depth times ``targets.off_axis_factor`` of its centre's ray in the frame).
 
@@ -286,6 +286,7 @@ class DopeDataset(torch.utils.data.Dataset):
         self.sigma_px, self.negatives, self.occluders = sigma_px, negatives, occluders
         self.backgrounds, self.photos = backgrounds, photos or []
         self.off_axis = off_axis
+        self.points = next((len(s.keypoints[0]) for s in samples if s.keypoints), 9)  # P: keypoints per instance
         self.augment = augment or Augment()
         self.epoch = 0
         self._images: list[np.ndarray] | None = None
@@ -320,18 +321,18 @@ class DopeDataset(torch.utils.data.Dataset):
         return self._unions[index] if self._unions is not None else masks_union(self.samples[index].masks)
 
     def item(self, index: int, epoch: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The augmented crop [S, S, 3] uint8 RGB, its keypoints [I, 9, 2] (crop pixels) and the affine
+        """The augmented crop [S, S, 3] uint8 RGB, its keypoints [I, P, 2] (crop pixels) and the affine
         [2, 3] from image to crop pixels, of ``epoch`` (default ``self.epoch``)."""
         sample = self.samples[index]
         rng = np.random.default_rng([self.seed, self.epoch if epoch is None else epoch, index])
         image = self.image(index)
-        keypoints = np.stack(sample.keypoints) if sample.keypoints else np.zeros((0, 9, 2))
+        keypoints = np.stack(sample.keypoints) if sample.keypoints else np.zeros((0, self.points, 2))
         chosen = None
         if not len(keypoints) or (self.negatives > 0 and rng.uniform() < self.negatives):
             centre = rng.uniform((0, 0), image.shape[1::-1])
         else:
             chosen = rng.integers(len(keypoints))
-            centre = keypoints[chosen, 8]
+            centre = keypoints[chosen, -1]
         base = input_scale(image.shape[:2], sample.K, self.size, self.focal_px)
         M = crop_transform(self.size, base, centre, rng, self.augment)
         border = tuple(int(v) for v in rng.integers(0, 256, 3)) if self.augment.enabled else (0, 0, 0)
@@ -350,7 +351,7 @@ class DopeDataset(torch.utils.data.Dataset):
 
     def occlude(self, crop: np.ndarray, keypoints: np.ndarray, index: int, rng: np.random.Generator) -> np.ndarray:
         """``crop`` [S, S, 3] uint8 with a cut-out of another sample's image than ``index`` pasted over part of the
-        instance whose keypoints [9, 2] (crop px) are given."""
+        instance whose keypoints [P, 2] (crop px) are given."""
         other = rng.integers(len(self.samples) - 1)
         other += other >= index
         source, image = self.samples[other], self.image(other)
@@ -372,9 +373,9 @@ class DopeDataset(torch.utils.data.Dataset):
         focal = mapped_focal(sample.K, M[:, :2])  # the crop's, px
         depths = sample.depths if len(sample.depths) == len(keypoints) else np.full(len(keypoints), np.nan)
         if self.off_axis and len(keypoints):
-            centres = np.array([[*k[8], 1.0] for k in sample.keypoints])
+            centres = np.array([[*k[-1], 1.0] for k in sample.keypoints])
             depths = depths * off_axis_factor((centres @ np.linalg.inv(sample.K).T)[:, :2])
-        distance, weight = make_distance_targets(keypoints[:, 8], distance_code(depths, focal), self.size, self.size,
+        distance, weight = make_distance_targets(keypoints[:, -1], distance_code(depths, focal), self.size, self.size,
                                                  self.stride, self.sigma_px)
         image = torch.from_numpy(np.ascontiguousarray(crop)).permute(2, 0, 1).float() / 255.0
         return image, *(torch.from_numpy(t) for t in (beliefs, affinities, distance, weight))

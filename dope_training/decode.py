@@ -37,8 +37,11 @@ most ``CANDIDATES``): where a look-alike part of the object (or another object) 
 one is often a weaker peak nearby, which the grouping by distance passes over and ``pnp.solve_pose_consensus``
 can pick up.
 
+Corners: DOPE's 8 cuboid corners, or the K object points of a network with more maps (the centroid's map last);
+the same rules for each.
+
 Score: an instance's detection score is the geometric mean of its centroid's belief and the mean belief of its
-eight corners (0 where not found), and instances under ``min_score`` are dropped once grouped. A look-alike in
+corners (0 where not found), and instances under ``min_score`` are dropped once grouped. A look-alike in
 real clutter (docs/TRAINING.md run GG) mostly has weaker corners around its centroid than an instance; on the generated
 held-out frames of four LM-O objects the score separates the estimates on an instance from the others better
 than the centroid's belief alone (ROC AUC 0.92-0.98 against 0.86-0.94). The geometric mean keeps a belief's
@@ -62,19 +65,19 @@ CANDIDATE_REACH = 1.5  # candidates within this times the instance's farthest jo
 
 @dataclass
 class Detection:
-    """One instance: keypoints [9, 2] in input pixels (corners 0..7 in DOPE's order, NaN where not found,
-    then the centroid), scores [9] (unblurred belief at each keypoint's peak, 0 where not found) and per corner
-    its candidate peaks (module docstring), [C, 3] each (x, y input pixels, belief; C <= CANDIDATES, the joined
-    corner first; none where the instance has no corner)."""
+    """One instance: keypoints [K + 1, 2] in input pixels (corners 0..K-1, DOPE's 8 in its order, NaN where not
+    found, then the centroid), scores [K + 1] (unblurred belief at each keypoint's peak, 0 where not found) and
+    per corner its candidate peaks (module docstring), [C, 3] each (x, y input pixels, belief; C <= CANDIDATES,
+    the joined corner first; none where the instance has no corner)."""
 
     keypoints: np.ndarray
     scores: np.ndarray
-    candidates: list[np.ndarray] = field(default_factory=lambda: [np.zeros((0, 3))] * 8)
+    candidates: list[np.ndarray] = field(default_factory=list)  # K of them once grouped
 
     @property
     def score(self) -> float:
         """The detection score: sqrt(centroid belief x mean corner belief), see the module docstring."""
-        return float(np.sqrt(self.scores[8] * self.scores[:8].mean()))
+        return float(np.sqrt(self.scores[-1] * self.scores[:-1].mean()))
 
 
 def find_peaks(belief: np.ndarray, stride: int = 8, blur_cells: float = 1.0, blur_threshold: float = 0.01,
@@ -114,21 +117,22 @@ def subcell(belief: np.ndarray, i: int, j: int) -> np.ndarray:
 def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8, blur_cells: float = 1.0,
                    blur_threshold: float = 0.01, min_score: float = 0.1,
                    max_angle_error: float = 0.5) -> list[Detection]:
-    """Instances in one image's maps: beliefs [9, h, w], affinities [16, h, w] (the network's last stage).
+    """Instances in one image's maps: beliefs [K + 1, h, w], affinities [2 K, h, w] (the network's last stage).
 
     Returns Detections (keypoints in input pixels of the network's input) scoring above ``min_score``, highest
     score first.
     """
     peak_score = min(min_score, CORNER_SCORE)
-    centroids, _, centroid_scores = find_peaks(beliefs[8], stride, blur_cells, blur_threshold, peak_score)
+    corners = len(beliefs) - 1
+    centroids, _, centroid_scores = find_peaks(beliefs[-1], stride, blur_cells, blur_threshold, peak_score)
     order = np.argsort(-centroid_scores, kind="stable")
     centroids, centroid_scores = centroids[order], centroid_scores[order]
     detections = []
     for centroid, score in zip(centroids, centroid_scores):
-        keypoints = np.full((9, 2), np.nan)
-        keypoints[8] = centroid
-        detections.append(Detection(keypoints, np.r_[np.zeros(8), score]))
-    peaks = [find_peaks(beliefs[k], stride, blur_cells, blur_threshold, peak_score) for k in range(8)]
+        keypoints = np.full((corners + 1, 2), np.nan)
+        keypoints[-1] = centroid
+        detections.append(Detection(keypoints, np.r_[np.zeros(corners), score]))
+    peaks = [find_peaks(beliefs[k], stride, blur_cells, blur_threshold, peak_score) for k in range(corners)]
     for k, (points, cells, scores) in enumerate(peaks):
         pairs = []  # (distance, peak, instance) of every pair whose directions agree
         for p, (point, (i, j)) in enumerate(zip(points, cells)):
@@ -154,15 +158,15 @@ def find_keypoints(beliefs: np.ndarray, affinities: np.ndarray, stride: int = 8,
 
 
 def corner_candidates(keypoints: np.ndarray, peaks: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-    """Per corner kind, [C, 3] (x, y, belief) candidate peaks of the instance whose keypoints [9, 2] are given
+    """Per corner kind, [C, 3] (x, y, belief) candidate peaks of the instance whose keypoints [K + 1, 2] are given
     (module docstring), from each kind's peaks: (points [P, 2], beliefs [P])."""
-    distances = np.linalg.norm(keypoints[:8] - keypoints[8], axis=1)
+    distances = np.linalg.norm(keypoints[:-1] - keypoints[-1], axis=1)
     if np.isnan(distances).all():
-        return [np.zeros((0, 3))] * 8
+        return [np.zeros((0, 3))] * len(peaks)
     reach = CANDIDATE_REACH * np.nanmax(distances)
     out = []
     for k, (points, scores) in enumerate(peaks):
-        near = np.linalg.norm(points - keypoints[8], axis=1) < reach  # points [P, 2], P may be 0
+        near = np.linalg.norm(points - keypoints[-1], axis=1) < reach  # points [P, 2], P may be 0
         joined = np.all(points == keypoints[k], axis=1)  # none where the corner was not joined (NaN)
         # the joined corner first, then the others by belief (np.lexsort: the last key is the primary one)
         order = np.lexsort((-scores, ~joined))

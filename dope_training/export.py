@@ -2,7 +2,8 @@
 
 The graph's input ``image`` [B, 3, H, W] float32 is RGB in 0..1 (H, W multiples of 8): the normalisation
 (mean/std, stored in the model's config) is part of the network and so of the graph. Its outputs are the
-last stage's ``beliefs`` [B, 9, H/8, W/8] and ``affinities`` [B, 16, H/8, W/8], and for a network with a
+last stage's ``beliefs`` [B, K + 1, H/8, W/8] and ``affinities`` [B, 2 K, H/8, W/8] (K = the config's
+``keypoints``, DOPE's 8), and for a network with a
 distance head ``distance`` [B, 1, H/8, W/8] (distance codes, ``targets.distance_code``); batch, height and width
 are dynamic. metadata_props hold ``variant``, ``stride``, ``input`` (the layout and range above),
 ``mean``, ``std`` (JSON lists) and ``config`` (the model's config as JSON, for ``model.build_model``); an

@@ -8,8 +8,8 @@ keypoints are taken back to image pixels (pixel centres: x_image = (x_net + 0.5)
 samples); PnP (``pnp.solve_pose_consensus``: the corners' candidate peaks that best support a pose, then SQPnP and
 Levenberg-Marquardt, keypoints that do not fit the others dropped) with the camera K gives the pose; a network
 with a distance head then moves it onto the ray through the detected centroid at the distance the head reads
-there (``on_centroid_ray``). Missing corners do not drop a detection: any 5 of the 9 keypoints (the centroid
-counts as one) are solved, see ``pnp``. With a depth image,
+there (``on_centroid_ray``). Missing corners do not drop a detection: any 5 of the keypoints (DOPE's 9, or the
+network's object points and the centroid, which counts as one) are solved, see ``pnp``. With a depth image,
 each pose is then refined against it (``refine.refine_multistart``), starting from the pose moved onto the ray
 through the detected centroid at the depth seen there (``on_centroid_ray``). A centroid whose keypoints PnP
 cannot solve (too few corners joined it, or they put the object behind the camera) is then not lost: its
@@ -55,7 +55,7 @@ NO_PNP_START = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1
 class ObjectPose:
     """One detected instance: T_cam_obj [4, 4] (metres, camera frame, OpenCV axes) from DOPE + PnP (None
     when PnP could not solve its keypoints: then kept only because depth refinement found it), its detection
-    score (``decode.Detection.score``), keypoints [9, 2] in image pixels (NaN where not found), the mean
+    score (``decode.Detection.score``), keypoints [P, 2] in image pixels (NaN where not found), the mean
     reprojection error (px, NaN without PnP) and, when a depth image was given, the depth refinement
     (``refine.Refinement``), or when the object's mesh was, the refinement against the RGB image
     (``refine_rgb.RgbRefinement``)."""
@@ -105,7 +105,7 @@ def centroid_ray(centroid_px: np.ndarray, K: np.ndarray, dist: np.ndarray | None
 def on_centroid_ray(T_cam_obj: np.ndarray, points: np.ndarray, centroid_px: np.ndarray, K: np.ndarray,
                     dist: np.ndarray | None = None, depth_m: np.ndarray | None = None,
                     z_m: float | None = None) -> np.ndarray:
-    """T_cam_obj [4, 4] moved so that the object's centre (``points`` [9, 3]: the network's object points,
+    """T_cam_obj [4, 4] moved so that the object's centre (``points`` [P, 3]: the network's object points,
     m, object frame, the last its box's centre) lies on the ray through the detected centroid ``centroid_px``
     [2] (image px): DOPE's centroid is its surest keypoint, while PnP lets wrong corners drag the centre off
     it, and its distance with it. The centre keeps its z, or takes ``z_m`` (m: the distance head's), or with
@@ -113,14 +113,14 @@ def on_centroid_ray(T_cam_obj: np.ndarray, points: np.ndarray, centroid_px: np.n
     depth along the optical axis at the PnP rotation (the surface seen there is the object's front: the start
     of depth refinement)."""
     ray = centroid_ray(centroid_px, K, dist)
-    centre = T_cam_obj[:3, :3] @ points[8] + T_cam_obj[:3, 3]
+    centre = T_cam_obj[:3, :3] @ points[-1] + T_cam_obj[:3, 3]
     z = centre[2] if z_m is None else z_m
     if depth_m is not None:
         u, v = np.round(np.asarray(centroid_px)).astype(int)
         window = depth_m[max(v - 4, 0):max(v + 5, 0), max(u - 4, 0):max(u + 5, 0)]
         window = window[np.isfinite(window) & (window > 0)]
         if window.size:
-            offsets = (points[:8] - points[8]) @ T_cam_obj[2, :3]
+            offsets = (points[:-1] - points[-1]) @ T_cam_obj[2, :3]
             z = float(np.median(window)) + float(np.ptp(offsets)) / 2
     out = T_cam_obj.copy()
     out[:3, 3] += np.r_[ray * z, z] - centre
@@ -150,8 +150,8 @@ def inference_network(model: torch.nn.Module, device: torch.device) -> torch.nn.
 
 def network_outputs(model: torch.nn.Module, x: np.ndarray) -> list[np.ndarray]:
     """The last stage's outputs of an :func:`inference_network` for a network input ``x`` [1, 3, H, W] float32 in
-    [0, 1] (H, W multiples of STRIDE), float32 on the host: beliefs [1, 9, H/8, W/8], affinities [1, 16, H/8, W/8]
-    and, with a distance head, distance codes [1, 1, H/8, W/8]."""
+    [0, 1] (H, W multiples of STRIDE), float32 on the host: beliefs [1, K + 1, H/8, W/8], affinities
+    [1, 2 K, H/8, W/8] and, with a distance head, distance codes [1, 1, H/8, W/8]."""
     weight = next(model.parameters())
     layout = torch.channels_last if weight.is_cuda else torch.contiguous_format
     with torch.inference_mode():
@@ -184,7 +184,7 @@ class DopeModel:
             self._init_onnx(path, device)
         else:
             self._init_torch(path, device)
-        self.points = object_keypoints(self.object.keypoints, self.object.bbox_min, self.object.bbox_size)  # [9, 3] m
+        self.points = object_keypoints(self.object.keypoints, self.object.bbox_min, self.object.bbox_size)  # [P, 3] m
         obj = self.object  # surface samples for depth refinement, as arrays once (None: trained without a model)
         self.surface = None if obj.surface_points is None else (np.asarray(obj.surface_points, np.float64),
                                                                 np.asarray(obj.surface_normals, np.float64))
@@ -208,8 +208,9 @@ class DopeModel:
         meta = self.session.get_modelmeta().custom_metadata_map
         if not {"object", "input_short_side", "config"} <= meta.keys():
             raise PegasusError(f"{path}: no object/input_short_side/config metadata; export it with `pegasus export`")
-        self.object = target_object(_metadata(meta, "object", json.loads, path), f"{path}: metadata object")
         self.config = config_from_dict(_metadata(meta, "config", json.loads, path), f"{path}: metadata config")
+        self.object = target_object(_metadata(meta, "object", json.loads, path), f"{path}: metadata object",
+                                    self.config.keypoints)
         self.short_side = _metadata(meta, "input_short_side", int, path)
         self.focal_px = _metadata(meta, "input_focal_px", float, path) if "input_focal_px" in meta else 0.0
         if self.short_side <= 0 or not (np.isfinite(self.focal_px) and self.focal_px >= 0):
@@ -241,7 +242,7 @@ class DopeModel:
 
     def maps(self, image: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
                                                                tuple[float, float]]:
-        """The last stage's beliefs [9, h, w], affinities [16, h, w] and distance codes [h, w] (None without a
+        """The last stage's beliefs [K + 1, h, w], affinities [2 K, h, w] and distance codes [h, w] (None without a
         distance head) for an RGB image [H, W, 3] uint8 seen with intrinsics K [3, 3], and the (x, y) scale from
         image to network-input pixels."""
         h, w = image.shape[:2]
@@ -291,16 +292,16 @@ class DopeModel:
             if T is None and depth_m is None:
                 continue
             if T is not None and distance is not None:
-                code = read_map(distance, det.keypoints[8], STRIDE)
+                code = read_map(distance, det.keypoints[-1], STRIDE)
                 z = float(distance_from_code(code, mapped_focal(K, np.diag([sx, sy]))))
                 if self.config.distance_off_axis:
-                    z /= float(off_axis_factor(centroid_ray(keypoints[8], K, dist)))
-                T = on_centroid_ray(T, self.points, keypoints[8], K, dist, z_m=z)
+                    z /= float(off_axis_factor(centroid_ray(keypoints[-1], K, dist)))
+                T = on_centroid_ray(T, self.points, keypoints[-1], K, dist, z_m=z)
             if T is not None and self.zoom is not None:
                 T = self.zoom.refine(image, K, T)
             pose = ObjectPose(T, det.score, keypoints, error)
             if depth_m is not None:
-                start = on_centroid_ray(NO_PNP_START if T is None else T, self.points, keypoints[8], K, dist, depth_m)
+                start = on_centroid_ray(NO_PNP_START if T is None else T, self.points, keypoints[-1], K, dist, depth_m)
                 pose.refinement = refine_multistart(start, depth_m, K, *self.surface, self.object.symmetry_axis)
                 if pose.T is None and not pose.refinement.accepted:
                     continue

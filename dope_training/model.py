@@ -3,7 +3,8 @@
 ``full``: VGG19 conv1_1..conv4_2 (stride 8) laid out like torchvision's ``vgg19().features[:23]`` so its
 ImageNet weights load, then 512->256->128 3x3 convs; six stages, each with a belief branch (9 maps) and
 an affinity branch (16 maps); stage 1 from the features (three 3x3 convs, 1x1 to 512, 1x1 out), stages
-2-6 from concat(beliefs, affinities, features) = 153 channels (five 7x7 convs, 1x1, 1x1 out).
+2-6 from concat(beliefs, affinities, features) = 153 channels (five 7x7 convs, 1x1, 1x1 out). The maps are
+DOPE's for 8 object points and the centre; with ``keypoints`` K points, K + 1 belief and 2 K affinity maps.
 ``light``: the same structure at a quarter of the trunk width, 64-channel stages with 3x3 instead of
 7x7 kernels, 3 stages and BatchNorm after every hidden convolution (it trains from scratch: without
 normalisation the deep plain stack sits at all-zero or blurred beliefs for thousands of steps); about 60x
@@ -43,6 +44,7 @@ LITE0_MEAN, LITE0_STD = (0.5, 0.5, 0.5), (0.5, 0.5, 0.5)  # EfficientNet-Lite's 
 # late in training) and the Huber loss's quadratic zone (log distance)
 DISTANCE_LOSS_WEIGHT = 0.1
 DISTANCE_HUBER = 0.05
+MIN_KEYPOINTS = 5  # object points besides the centre a network finds at least (PnP's and the consensus's draws)
 VGG19_TO_CONV4_2 = (64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512)  # features[:23]
 
 
@@ -62,6 +64,7 @@ class ModelConfig:
     distance_head: bool = False  # a branch after the last stage giving distance codes (module docstring)
     distance_off_axis: bool = False  # its codes are of the depth on the optical axis that looks alike
     # (``targets.off_axis_factor``); False: of the depth itself, as networks trained before it
+    keypoints: int = 8  # object points besides the centre: K + 1 belief maps, 2 K affinity maps
 
     @staticmethod
     def of(variant: str) -> "ModelConfig":
@@ -114,8 +117,8 @@ def _both(belief: nn.Module, affinity: nn.Module, x: torch.Tensor, streams: tupl
 
 class DopeNetwork(nn.Module):
     """image [B, 3, H, W] RGB 0..1 (H, W multiples of 8) -> list over stages of
-    (beliefs [B, 9, H/8, W/8], affinities [B, 16, H/8, W/8]); with ``distance_head`` the last stage's tuple
-    has a third map, distance codes [B, 1, H/8, W/8]."""
+    (beliefs [B, K + 1, H/8, W/8], affinities [B, 2 K, H/8, W/8]), K = ``config.keypoints`` (DOPE's 8: 9 and 16
+    maps); with ``distance_head`` the last stage's tuple has a third map, distance codes [B, 1, H/8, W/8]."""
 
     def __init__(self, config: ModelConfig | None = None):
         super().__init__()
@@ -136,11 +139,14 @@ class DopeNetwork(nn.Module):
             raise ValueError(f"unknown trunk {c.trunk!r} (vgg or lite0)")
         self.reduce = nn.Sequential(*_conv(cin, 256 // c.width_divisor, 3, bn=c.batch_norm),
                                     *_conv(256 // c.width_divisor, 128 // c.width_divisor, 3, bn=c.batch_norm))
-        feat = 128 // c.width_divisor
+        if c.keypoints < MIN_KEYPOINTS:
+            raise ValueError(f"keypoints {c.keypoints} < {MIN_KEYPOINTS}")
+        feat, maps = 128 // c.width_divisor, 3 * c.keypoints + 1
         self.beliefs, self.affinities = (
-            nn.ModuleList([_branch(feat if s == 0 else feat + 25, out, c.stage_channels, s == 0, c.late_kernel,
-                                   c.batch_norm) for s in range(c.stages)]) for out in (9, 16))
-        self.distance = _branch(feat + 25, 1, c.stage_channels, False, c.late_kernel, c.batch_norm) \
+            nn.ModuleList([_branch(feat if s == 0 else feat + maps, out, c.stage_channels, s == 0, c.late_kernel,
+                                   c.batch_norm) for s in range(c.stages)])
+            for out in (c.keypoints + 1, 2 * c.keypoints))
+        self.distance = _branch(feat + maps, 1, c.stage_channels, False, c.late_kernel, c.batch_norm) \
             if c.distance_head else None
         self.register_buffer("mean", torch.tensor(c.mean).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(c.std).view(1, 3, 1, 1), persistent=False)
@@ -256,7 +262,7 @@ def load_vgg19_weights(model: DopeNetwork, path=None) -> bool:
 
 def dope_loss(outputs, beliefs: torch.Tensor, affinities: torch.Tensor, peak_weight: float = 0.0,
               distance: torch.Tensor | None = None, distance_weight: torch.Tensor | None = None) -> torch.Tensor:
-    """Sum over stages of MSE(beliefs) + MSE(affinities); targets [B, 9|16, h, w]. With ``peak_weight`` w > 0
+    """Sum over stages of MSE(beliefs) + MSE(affinities); targets [B, K + 1 | 2 K, h, w]. With ``peak_weight`` w > 0
     each belief cell's squared error is weighted by 1 + w * target (DOPE: 0), so the few cells near a
     keypoint are not drowned by the empty rest of the map. When the last stage has a distance map and
     ``distance`` targets [B, 1, h, w] are given, plus DISTANCE_LOSS_WEIGHT x the Huber error (DISTANCE_HUBER:

@@ -38,8 +38,9 @@ def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist
     """T_cam_obj [4, 4] (metres, as ``cuboid``) and the mean reprojection error (px) of the keypoints used,
     or None when fewer than ``min_points`` are found, PnP fails or the object would be behind the camera.
 
-    keypoints_2d [9, 2]: pixels (OpenCV), NaN rows for keypoints not found; cuboid [9, 3]: the same
-    keypoints in the object frame (``cuboid.cuboid_points``); K [3, 3]; dist: OpenCV distortion or None.
+    keypoints_2d [P, 2]: pixels (OpenCV), NaN rows for keypoints not found; cuboid [P, 3]: the same
+    keypoints in the object frame (``cuboid.cuboid_points``, or the network's object points: the centre last);
+    K [3, 3]; dist: OpenCV distortion or None.
     """
     used = np.isfinite(keypoints_2d).all(axis=1)
     if used.sum() < min_points:
@@ -58,7 +59,7 @@ def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist
         projected = cv2.projectPoints(np.asarray(cuboid, np.float64), rvec, tvec, K, dist)[0].reshape(-1, 2)
         errors = np.where(used, np.linalg.norm(projected - np.nan_to_num(keypoints_2d), axis=1), -1.0)
         worst = int(np.argmax(errors))
-        diagonal = float(np.linalg.norm(np.ptp(projected[:8], axis=0)))
+        diagonal = float(np.linalg.norm(np.ptp(projected[:-1], axis=0)))
         if used.sum() <= MIN_INLIERS or not errors[worst] > OUTLIER_FRACTION * diagonal:
             break
         used[worst] = False
@@ -72,7 +73,7 @@ def solve_pose(keypoints_2d: np.ndarray, cuboid: np.ndarray, K: np.ndarray, dist
 
 def _project(cuboid: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray,
              dist: np.ndarray | None) -> np.ndarray:
-    """[H, 9, 2] px: ``cuboid`` [9, 3] projected at each pose (rvec [3, 1], tvec [3, 1]); NaN where a point lies at
+    """[H, P, 2] px: ``cuboid`` [P, 3] projected at each pose (rvec [3, 1], tvec [3, 1]); NaN where a point lies at
     or behind the camera plane."""
     if dist is not None and np.any(dist):
         return np.stack([cv2.projectPoints(cuboid, r, t, K, dist)[0].reshape(-1, 2) for r, t in poses])
@@ -84,11 +85,11 @@ def _project(cuboid: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]], K: 
 
 def _support(projected: np.ndarray, candidates: list[np.ndarray], centroid: np.ndarray,
              tau_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """Of each pose's projected keypoints [H, 9, 2]: the summed belief of the candidates lying within ``tau_px`` of
-    their corner's projection (per corner the nearest), -1 where the centroid [2] does not project within
-    ``tau_px``: scores [H]; and the candidate picked per corner, -1 where none: [H, 8] int."""
+    """Of each pose's projected keypoints [H, K + 1, 2]: the summed belief of the candidates lying within ``tau_px``
+    of their corner's projection (per corner the nearest), -1 where the centroid [2] does not project within
+    ``tau_px``: scores [H]; and the candidate picked per corner, -1 where none: [H, K] int."""
     scores = np.zeros(len(projected))
-    picks = np.full((len(projected), 8), -1)
+    picks = np.full((len(projected), len(candidates)), -1)
     for k, found in enumerate(candidates):
         if len(found):
             d = np.linalg.norm(projected[:, k, None, :] - found[None, :, :2], axis=2)  # [H, C]; NaN: behind
@@ -96,7 +97,7 @@ def _support(projected: np.ndarray, candidates: list[np.ndarray], centroid: np.n
             near = np.take_along_axis(d, j[:, None], axis=1)[:, 0] <= tau_px
             scores += np.where(near, found[j, 2], 0.0)
             picks[:, k] = np.where(near, j, -1)
-    centred = np.linalg.norm(projected[:, 8] - centroid, axis=1) <= tau_px
+    centred = np.linalg.norm(projected[:, -1] - centroid, axis=1) <= tau_px
     return np.where(centred, scores, -1.0), picks
 
 
@@ -104,19 +105,20 @@ def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray],
                          tau_px: float, dist: np.ndarray | None = None, seed: int = 0
                          ) -> tuple[np.ndarray, float, np.ndarray] | None:
     """``solve_pose`` of the keypoints that the best-supported hypothesis over the corners' candidate peaks picks
-    (module docstring): (T_cam_obj [4, 4], mean reprojection error px, the keypoints picked [9, 2]), or None where
-    ``solve_pose`` of the keypoints as joined finds none.
+    (module docstring): (T_cam_obj [4, 4], mean reprojection error px, the keypoints picked [K + 1, 2]), or None
+    where ``solve_pose`` of the keypoints as joined finds none.
 
-    keypoints_2d [9, 2] as ``solve_pose``'s (the corners as joined, then the centroid); candidates: per corner [C, 3]
-    (x, y px, belief), ``decode.Detection.candidates`` in the same pixels; tau_px: how near a candidate must lie to a
-    reprojected corner to support a pose (px)."""
+    keypoints_2d [K + 1, 2] as ``solve_pose``'s (the corners as joined, then the centroid); candidates: per corner
+    [C, 3] (x, y px, belief), ``decode.Detection.candidates`` in the same pixels; tau_px: how near a candidate must
+    lie to a reprojected corner to support a pose (px)."""
     joined = solve_pose(keypoints_2d, cuboid, K, dist)
     if joined is None:
         return None
     if not any(len(found) > 1 or (len(found) == 1 and not np.allclose(found[0, :2], keypoints_2d[k]))
                for k, found in enumerate(candidates)):
         return (*joined, keypoints_2d)  # nothing to choose from
-    K, cuboid, centroid = np.asarray(K, np.float64), np.asarray(cuboid, np.float64), keypoints_2d[8]
+    K, cuboid, centroid = np.asarray(K, np.float64), np.asarray(cuboid, np.float64), keypoints_2d[-1]
+    centre = len(cuboid) - 1
     poses = [(cv2.Rodrigues(joined[0][:3, :3])[0], joined[0][:3, 3].reshape(3, 1))]
     drawable = np.array([k for k, found in enumerate(candidates) if len(found)])
     if len(drawable) >= SAMPLE:
@@ -127,7 +129,7 @@ def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray],
         for ks, js in zip(corners, picks):
             image = np.array([*(candidates[k][j, :2] for k, j in zip(ks, js)), centroid])
             try:
-                ok, rvec, tvec = cv2.solvePnP(cuboid[[*ks, 8]], image, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+                ok, rvec, tvec = cv2.solvePnP(cuboid[[*ks, centre]], image, K, dist, flags=cv2.SOLVEPNP_SQPNP)
             except cv2.error:
                 continue
             if ok:
@@ -136,8 +138,8 @@ def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray],
     best = int(np.argmax(scores))  # the first of the best: the corners as joined on a tie
     if scores[best] < 0:
         return (*joined, keypoints_2d)
-    keypoints = np.full((9, 2), np.nan)
-    keypoints[8] = centroid
+    keypoints = np.full_like(keypoints_2d, np.nan)
+    keypoints[-1] = centroid
     for k, j in enumerate(picks[best]):
         if j >= 0:
             keypoints[k] = candidates[k][j, :2]

@@ -34,24 +34,26 @@ def make_targets(keypoints: np.ndarray, valid: np.ndarray, height: int, width: i
                  sigma_px: float = SIGMA_PX, radius_px: float = AFFINITY_RADIUS_PX) -> tuple[np.ndarray, np.ndarray]:
     """Belief and affinity targets for an input image of ``height`` x ``width`` px.
 
-    keypoints [I, 9, 2]: per instance the 8 cuboid corners then the centroid, input pixels (x, y);
-    valid [I, 9] bool: keypoints to draw. Returns beliefs [9, H/s, W/s] float32 (a Gaussian of std
-    ``sigma_px`` around each keypoint, value 1 at it, max over instances) and affinities
-    [16, H/s, W/s] float32 (channels 2k, 2k+1: unit vector x, y from corner k towards its instance's
-    centroid, in the cells within ``radius_px`` of the corner; later instances overwrite).
+    keypoints [I, K + 1, 2]: per instance the K object points (DOPE's: the 8 cuboid corners) then the centroid,
+    input pixels (x, y); valid [I, K + 1] bool: keypoints to draw. Returns beliefs [K + 1, H/s, W/s] float32 (a
+    Gaussian of std ``sigma_px`` around each keypoint, value 1 at it, max over instances) and affinities
+    [2 K, H/s, W/s] float32 (channels 2k, 2k+1: unit vector x, y from point k towards its instance's centroid,
+    in the cells within ``radius_px`` of the point; later instances overwrite).
     """
+    keypoints = np.asarray(keypoints, np.float64)
+    count = keypoints.shape[1]  # K + 1
     cx, cy = cell_centres(height, width, stride)
-    beliefs = np.zeros((9, *cx.shape), np.float32)
-    affinities = np.zeros((16, *cx.shape), np.float32)
-    for points, ok in zip(np.asarray(keypoints, np.float64), np.asarray(valid, bool)):
-        for k in range(9):
+    beliefs = np.zeros((count, *cx.shape), np.float32)
+    affinities = np.zeros((2 * (count - 1), *cx.shape), np.float32)
+    for points, ok in zip(keypoints, np.asarray(valid, bool)):
+        for k in range(count):
             if not ok[k]:
                 continue
             d2 = (cx - points[k, 0]) ** 2 + (cy - points[k, 1]) ** 2
             np.maximum(beliefs[k], np.exp(-d2 / (2 * sigma_px**2)), out=beliefs[k])
-            if k == 8 or not ok[8]:
+            if k == count - 1 or not ok[-1]:
                 continue
-            direction = points[8] - points[k]
+            direction = points[-1] - points[k]
             norm = np.linalg.norm(direction)
             if norm < 1e-9:
                 continue

@@ -90,7 +90,8 @@ def load_training_samples(cfg: TrainConfig):
             symmetric = bool(info.get("symmetries_discrete")) or axis is not None
             mesh = read_model(root, obj_id)
             points, normals = surface_samples(mesh)
-            keypoints = surface_keypoints(mesh, *boxes[obj_id]) if cfg.keypoints == "surface" else None
+            keypoints = surface_keypoints(mesh, *boxes[obj_id], cfg.surface_points) if cfg.keypoints == "surface" \
+                else None
             found = TargetObject(obj_id, name, boxes[obj_id][0].tolist(), boxes[obj_id][1].tolist(), symmetric,
                                  points.tolist(), normals.tolist(), None if axis is None else list(axis),
                                  None if keypoints is None else keypoints.tolist())
@@ -286,7 +287,8 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     if cfg.batch_norm is not None:
         architecture = replace(architecture, batch_norm=cfg.batch_norm)
     architecture = replace(architecture, distance_head=cfg.distance_head,
-                           distance_off_axis=cfg.distance_head and cfg.distance_off_axis)
+                           distance_off_axis=cfg.distance_head and cfg.distance_off_axis,
+                           keypoints=cfg.surface_points if cfg.keypoints == "surface" else 8)
     model = DopeNetwork(architecture)
     if state is None and cfg.variant == "full":
         if not load_vgg19_weights(model, cfg.vgg19) and rank == 0:

@@ -50,8 +50,10 @@ class TrainConfig(BaseModel):
                                                         "(DOPE: 0)")
     keypoints: Literal["cuboid", "surface"] = Field(
         "cuboid", description="the object points the network learns to find: cuboid (DOPE's: the model box's corners "
-                              "and centre) or surface (8 farthest points on the model's surface and the box's "
-                              "centre; BOP data)")
+                              "and centre) or surface (surface_points farthest points on the model's surface "
+                              "and the box's centre; BOP data)")
+    surface_points: int = Field(8, ge=5, le=32, description="with keypoints surface: how many points on the "
+                                "model's surface the network finds (one belief and two affinity maps each)")
     symmetry_axis: Optional[tuple[float, float, float]] = Field(
         None, description="axis (object frame) about which the object's shape is rotationally symmetric: canonical "
                           "labels about it (default: the dataset's symmetries_continuous, if any)")
@@ -106,6 +108,8 @@ class TrainConfig(BaseModel):
         if self.frozen_blocks and self.variant != "pretrained":
             raise ValueError(f"frozen_blocks keeps ImageNet's trunk, which only the pretrained variant has "
                              f"(not {self.variant})")
+        if self.keypoints == "cuboid" and self.surface_points != 8:
+            raise ValueError("surface_points needs keypoints surface (the cuboid has 8 corners)")
         self.size = self.size or (400 if self.variant == "full" else 320)
         self.lr = self.lr or (1e-4 if self.variant == "full" else 1e-3)
         return self

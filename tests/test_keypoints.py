@@ -1,6 +1,6 @@
 """The object points a DOPE network learns (``dope_training.keypoints``): farthest-point sampling against a brute-force
-reference and a hand case, a box's surface points at its corners, and a network trained on surface points carrying
-them into its checkpoint, its training targets and its inference's PnP."""
+reference and a hand case, a box's surface points at its corners, and a network trained on surface points (DOPE's 8
+and more) carrying them into its checkpoint, its maps, its training targets and its inference's PnP."""
 
 import json
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from dope_training.checkpoint import load_checkpoint
+from dope_training.checkpoint import load_checkpoint, target_object
 from dope_training.data import canonical_pose
 from dope_training.infer import DopeModel
 from dope_training.keypoints import farthest_points, object_keypoints, surface_keypoints
@@ -51,16 +51,23 @@ def test_a_boxs_surface_keypoints_lie_on_its_faces_spread_out_from_a_corner():
     assert first.min() < 0.004  # the farthest from the centre: a corner (of 5,000 samples, within 4 mm)
     gaps = np.linalg.norm(points[:8, None] - points[None, :8], axis=2) + np.eye(8)
     assert gaps.min() > 0.03  # spread over the box, no two within 3 cm (random picks: a few mm)
+    more = surface_keypoints(box, offset - size / 2, size, 16)
+    assert more.shape == (17, 3)
+    np.testing.assert_array_equal(more[:8], points[:8])  # more points add to the 8, the centre still last
+    np.testing.assert_array_equal(more[16], points[8])
     assert object_keypoints(None, offset - size / 2, size).tolist() == cuboid_points(offset - size / 2, size).tolist()
 
 
+@pytest.mark.parametrize("count", [8, 16])
 def test_a_network_trained_on_surface_points_carries_them_into_its_targets_and_solves_pnp_with_them(
-        dope_dataset, tmp_path):
+        dope_dataset, tmp_path, count):
     cfg = TrainConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(tmp_path / "run"), size=64,
-                      batch_size=2, epochs=1, loader_workers=0, device="cpu", keypoints="surface", min_visibility=0.0)
+                      batch_size=2, epochs=1, loader_workers=0, device="cpu", keypoints="surface",
+                      surface_points=count, min_visibility=0.0)
     obj_id = 1
-    expected = surface_keypoints(read_model(dope_dataset, obj_id), *model_boxes(dope_dataset)[obj_id])
-    assert not np.allclose(expected, cuboid_points(*model_boxes(dope_dataset)[obj_id]))
+    expected = surface_keypoints(read_model(dope_dataset, obj_id), *model_boxes(dope_dataset)[obj_id], count)
+    assert expected.shape == (count + 1, 3)
+    assert not np.allclose(expected[:8], cuboid_points(*model_boxes(dope_dataset)[obj_id])[:8])
 
     samples, target = load_training_samples(cfg)
     np.testing.assert_allclose(target.keypoints, expected)
@@ -82,6 +89,8 @@ def test_a_network_trained_on_surface_points_carries_them_into_its_targets_and_s
     np.testing.assert_allclose(load_checkpoint(run / "last.pt")["object"]["keypoints"], expected)
     model = DopeModel(run / "last.pt")
     np.testing.assert_allclose(model.points, expected)
+    beliefs, affinities, *_ = model.maps(read_rgb(scene / "rgb" / "000000.jpg"), K)
+    assert (len(beliefs), len(affinities)) == (count + 1, 2 * count)  # a map per point, two affinities per corner
 
     # Maps that mark the surface points' true projections exactly: inference must solve PnP with the same points
     image = read_rgb(scene / "rgb" / "000000.jpg")
@@ -89,16 +98,28 @@ def test_a_network_trained_on_surface_points_carries_them_into_its_targets_and_s
     projected = np.array([project_points(expected, T, K) for T in poses])
     beliefs, affinities = make_targets(projected, np.ones(projected.shape[:2], bool), h, w)
     model.maps = lambda image, K: (beliefs, affinities, None, (1.0, 1.0))
-    inside = [T for T, uv in zip(poses, projected[:, 8]) if 16 <= uv[0] <= w - 16 and 16 <= uv[1] <= h - 16]
+    inside = [T for T, uv in zip(poses, projected[:, -1]) if 16 <= uv[0] <= w - 16 and 16 <= uv[1] <= h - 16]
     assert inside  # (the others' centres lie at or beyond the image's edge, where the decoder clips them)
     surface = np.asarray(model.object.surface_points)
     found = model.estimate(image, K)
     for T in inside:
         assert min(add_error(surface, p.T, T) for p in found) < 0.002  # m, of a 9 cm cup
-    model.points = cuboid_points(model.object.bbox_min, model.object.bbox_size)  # the cuboid's points misread them
+    model.points = np.vstack([expected[:-1][::-1], expected[-1:]])  # the points in another order misread them
     misread = model.estimate(image, K)
     for T in inside:
         assert min(add_error(surface, p.T, T) for p in misread) > 0.01
+
+
+def test_a_point_count_the_network_does_not_have_is_refused():
+    obj = {"obj_id": 1, "name": "cup", "bbox_min": [-0.05] * 3, "bbox_size": [0.1] * 3}
+    points = np.random.default_rng(0).normal(size=(13, 3)).tolist()
+    assert len(target_object({**obj, "keypoints": points}, "model", 12).keypoints) == 13
+    with pytest.raises(PegasusError, match=r"not \[9, 3\].*finds 8 points"):
+        target_object({**obj, "keypoints": points}, "model")
+    with pytest.raises(PegasusError, match="not the cuboid's 8"):
+        target_object(obj, "model", 12)
+    with pytest.raises(ValueError, match="surface_points needs keypoints surface"):
+        TrainConfig(data=["d"], object="cup", surface_points=12)
 
 
 def test_surface_keypoints_need_a_bop_model(tmp_path):
