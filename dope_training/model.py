@@ -35,6 +35,7 @@ from torch import nn
 
 from dope_training.backbone import OUT_CHANNELS as LITE0_CHANNELS
 from dope_training.backbone import LiteTrunk
+from dope_training.targets import MIN_KEYPOINTS
 from pegasus_gen.errors import PegasusError
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -44,7 +45,6 @@ LITE0_MEAN, LITE0_STD = (0.5, 0.5, 0.5), (0.5, 0.5, 0.5)  # EfficientNet-Lite's 
 # late in training) and the Huber loss's quadratic zone (log distance)
 DISTANCE_LOSS_WEIGHT = 0.1
 DISTANCE_HUBER = 0.05
-MIN_KEYPOINTS = 5  # object points besides the centre a network finds at least (PnP's and the consensus's draws)
 VGG19_TO_CONV4_2 = (64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512)  # features[:23]
 
 

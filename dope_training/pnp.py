@@ -118,7 +118,6 @@ def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray],
                for k, found in enumerate(candidates)):
         return (*joined, keypoints_2d)  # nothing to choose from
     K, cuboid, centroid = np.asarray(K, np.float64), np.asarray(cuboid, np.float64), keypoints_2d[-1]
-    centre = len(cuboid) - 1
     poses = [(cv2.Rodrigues(joined[0][:3, :3])[0], joined[0][:3, 3].reshape(3, 1))]
     drawable = np.array([k for k, found in enumerate(candidates) if len(found)])
     if len(drawable) >= SAMPLE:
@@ -129,7 +128,7 @@ def solve_pose_consensus(keypoints_2d: np.ndarray, candidates: list[np.ndarray],
         for ks, js in zip(corners, picks):
             image = np.array([*(candidates[k][j, :2] for k, j in zip(ks, js)), centroid])
             try:
-                ok, rvec, tvec = cv2.solvePnP(cuboid[[*ks, centre]], image, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+                ok, rvec, tvec = cv2.solvePnP(cuboid[[*ks, -1]], image, K, dist, flags=cv2.SOLVEPNP_SQPNP)
             except cv2.error:
                 continue
             if ok:

@@ -14,6 +14,7 @@ from scipy.ndimage import map_coordinates
 STRIDE = 8  # the network's output stride: one map cell per 8 x 8 input pixels
 SIGMA_PX = 4.0  # belief Gaussian std in input pixels (half a map cell at stride 8), as DOPE
 AFFINITY_RADIUS_PX = 8.0  # cells whose centre lies this close to a corner carry its affinity vector
+MIN_KEYPOINTS = 5  # object points besides the centre a network's maps hold at least (pnp.SAMPLE's draws need 5)
 # distance codes: the log of the distance (m) at which a camera of this focal length (px) would see the object as
 # large as the network sees it, so that a code does not depend on the crop's scale
 DISTANCE_REF_PX = 500.0

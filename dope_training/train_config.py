@@ -7,7 +7,7 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from dope_training.targets import SIGMA_PX
+from dope_training.targets import MIN_KEYPOINTS, SIGMA_PX
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.io.files import parse_yaml
 
@@ -52,8 +52,8 @@ class TrainConfig(BaseModel):
         "cuboid", description="the object points the network learns to find: cuboid (DOPE's: the model box's corners "
                               "and centre) or surface (surface_points farthest points on the model's surface "
                               "and the box's centre; BOP data)")
-    surface_points: int = Field(8, ge=5, le=32, description="with keypoints surface: how many points on the "
-                                "model's surface the network finds (one belief and two affinity maps each)")
+    surface_points: int = Field(8, ge=MIN_KEYPOINTS, le=32, description="with keypoints surface: how many points on "
+                                "the model's surface the network finds (one belief and two affinity maps each)")
     symmetry_axis: Optional[tuple[float, float, float]] = Field(
         None, description="axis (object frame) about which the object's shape is rotationally symmetric: canonical "
                           "labels about it (default: the dataset's symmetries_continuous, if any)")
