@@ -41,6 +41,8 @@ class ZoomConfig(BaseModel):
                                "the objects")
     background_photos: Optional[str] = Field(None, description="folder of photos for backgrounds (default: "
                                              "scikit-image's; every fourth kept back as TrainConfig's)")
+    occluders: float = Field(0.0, ge=0.0, le=1.0, description="share of the crops with part of the object hidden "
+                             "behind a cut-out of another crop's surroundings")
     blur_px: float = Field(1.5, ge=0.0, description="half the crops blurred by a Gaussian of std up to this, px")
     colour_jitter: float = Field(0.4, ge=0.0, lt=1.0, description="brightness, contrast and saturation within 1 -/+ "
                                  "this")

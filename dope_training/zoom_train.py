@@ -4,7 +4,7 @@ Each visible instance of the object is seen from ``per_instance`` estimates draw
 centre moved aside and along its ray, the rotation turned: the kind of error DOPE makes), and the network learns
 the offsets back to the truth (``zoom.offsets``: the position's, and with ``rotation`` the turn's too). The crops
 are drawn once; every epoch redraws their augmentation: a real photograph behind the objects (BOP's visible masks),
-blur, colour jitter and hue as DOPE's recipe.
+with ``occluders`` part of the object hidden (``occluded``), blur, colour jitter and hue as DOPE's recipe.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dope_training.backgrounds import (
     split_photos,
     warp_alpha,
 )
-from dope_training.data import Augment, jitter_colour, resolve_objects
+from dope_training.data import Augment, jitter_colour, occluder_mask, resolve_objects
 from dope_training.model import torch_device
 from dope_training.refine_rgb import decimated
 from dope_training.zoom import (
@@ -88,6 +88,22 @@ def object_geometry(root: Path, obj_id: int, crop_px: int, object_px: float,
                            f"(the silhouette and normals views need none)")
     nearest = cKDTree(np.asarray(mesh.vertices)).query(vertices)[1]
     return surfaced(g, np.asarray(mesh.visual.vertex_colors)[nearest, :3] / 255.0)
+
+
+def occluded(crop: np.ndarray, view: np.ndarray, other: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``crop`` [C, C, 3] uint8 with a cut-out of ``other`` [C, C, 3] uint8, another crop moved by half its size
+    (what lies beside its object), in front of part of this one: ``occluder_mask``'s shape on the box of the
+    model's silhouette at the estimate (channel 0 of ``view`` [C, C, V]) grown 1-2 times about its centre, so that
+    it may hide a side or most of the object. The targets stay the truth's: the network learns to place an object
+    from the part that shows."""
+    size = len(crop)
+    ys, xs = np.nonzero(view[..., 0])
+    box = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]) if len(xs) else np.array([0, 0, size, size])
+    middle, half = (box[:2] + box[2:]) / 2, (box[2:] - box[:2]) / 2 * rng.uniform(1.0, 2.0)
+    mask = occluder_mask(size, np.concatenate([middle - half, middle + half]), rng)
+    out = crop.copy()
+    out[mask] = np.roll(other, (size // 2, size // 2), axis=(0, 1))[mask]
+    return out
 
 
 def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfig, rng: np.random.Generator) -> dict:
@@ -158,6 +174,8 @@ def train_zoom(cfg: ZoomConfig) -> Path:
                 crop = samples["crops"][i]
                 if photos and rng.uniform() < cfg.backgrounds:
                     crop = behind_objects(crop, samples["objects"][i] / 255.0, photo_view(photos, cfg.crop_px, rng))
+                if cfg.occluders > 0 and n > 1 and rng.uniform() < cfg.occluders:
+                    crop = occluded(crop, samples["views"][i], samples["crops"][(i + rng.integers(1, n)) % n], rng)
                 crops.append(jitter_colour(crop, rng, aug))
             x = zoom_tensor(np.stack(crops), samples["views"][idx]).to(device)
             y = torch.from_numpy(samples["offsets"][idx, :outputs]).to(device) / scale

@@ -1,7 +1,8 @@
 """The zoomed second look (dope_training.zoom): its crop centres the estimate with the object's diameter
 object_px long, its offsets and the move they give are inverses, the drawn estimates spread as configured, a
 position network keeps the rotation and a rotation network turns it, a network trained on a few frames brings
-estimates back, DOPE's poses pass through it with their rotation kept, the colour and normals views render the
+estimates back, occluders hide part of the object in its training crops and nothing else, DOPE's poses pass
+through it with their rotation kept, the colour and normals views render the
 model's colours and surface where its silhouette lies, and bad input is refused."""
 
 from dataclasses import replace
@@ -12,6 +13,7 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from dope_training import zoom_train
 from dope_training.infer import DopeModel
 from dope_training.zoom import (
     OFFSET_STD,
@@ -28,7 +30,7 @@ from dope_training.zoom import (
     zoom_input,
 )
 from dope_training.zoom_config import ZoomConfig
-from dope_training.zoom_train import drawn_estimate, object_geometry, train_zoom
+from dope_training.zoom_train import drawn_estimate, object_geometry, occluded, train_zoom
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames
@@ -109,6 +111,46 @@ def test_the_drawn_estimates_spread_as_configured():
     assert np.std(off[:, 2]) == pytest.approx(cfg.distance_std, rel=0.08) and np.abs(off[:, 2]).max() <= 0.15 + 1e-6
     turns = [np.degrees(Rotation.from_matrix(E[:3, :3] @ T[:3, :3].T).magnitude()) for T, E in zip(truths, drawn)]
     assert np.median(turns) == pytest.approx(0.674 * cfg.rotation_std_deg, rel=0.08)  # |N(0, std)|'s median
+
+
+def test_an_occluder_pastes_the_other_crop_moved_by_half_over_part_of_the_object_and_nothing_else():
+    g = _ball(crop_px=96, object_px=66.0)
+    rng = np.random.default_rng(0)
+    crop, view, _ = zoom_input(rng.integers(0, 256, (480, 640, 3), dtype=np.uint8), _pose(0), K, g)
+    other = rng.integers(0, 256, crop.shape, dtype=np.uint8)
+    moved_other = np.roll(other, (48, 48), axis=(0, 1))
+    silhouette = view[..., 0] > 127
+    ys, xs = np.nonzero(silhouette)
+    hidden = []
+    for seed in range(300):
+        out = occluded(crop, view, other, np.random.default_rng(seed))
+        changed = (out != crop).any(axis=-1)
+        np.testing.assert_array_equal(out[changed], moved_other[changed])  # the other crop's pixels, moved by half
+        where = np.nonzero(changed)
+        # the cut-out lies on the silhouette's box grown at most twice: never in a far corner (or off the crop)
+        assert not changed.any() or (np.abs(where[0].mean() - ys.mean()) < np.ptp(ys)
+                                     and np.abs(where[1].mean() - xs.mean()) < np.ptp(xs))
+        hidden.append((changed & silhouette).sum() / silhouette.sum())
+    # from none of the object to most of it (measured: median 0.13, 90th percentile 0.48, largest 0.94)
+    assert 0.05 < np.median(hidden) < 0.3 and np.percentile(hidden, 90) > 0.3 and max(hidden) > 0.7
+    assert np.mean(np.array(hidden) == 0) < 0.25
+
+
+def test_train_zoom_occludes_the_share_of_crops_it_is_asked_to(dope_dataset, tmp_path, monkeypatch):
+    calls = []
+
+    def counted(crop, view, other, rng):
+        calls.append(crop.shape)
+        return occluded(crop, view, other, rng)
+
+    monkeypatch.setattr(zoom_train, "occluded", counted)
+    cfg = dict(data=[str(dope_dataset)], object="noodle_cup_red", epochs=1, per_instance=8, batch_size=8,
+               crop_px=64, object_px=44.0, backgrounds=0.0, device="cpu", seed=0)
+    train_zoom(ZoomConfig(**cfg, out=str(tmp_path / "none.pt")))
+    assert calls == []  # the default hides nothing
+    train_zoom(ZoomConfig(**cfg, occluders=1.0, out=str(tmp_path / "all.pt")))
+    crops = torch.load(tmp_path / "all.pt", weights_only=True)["config"]["samples"]
+    assert len(calls) == crops // 8 * 8 and set(calls) == {(64, 64, 3)}  # every crop of every batch
 
 
 def test_a_pose_reaching_behind_the_camera_plane_stays_where_it_is():
