@@ -191,7 +191,7 @@ def add_commands(sub) -> None:
     options.add_config_flags(p, ZoomConfig, (
         "data", "object", "out", "split", "epochs", "per_instance", "batch_size", "lr", "crop_px", "object_px",
         "centre_std", "distance_std", "rotation_std_deg", "rotation", "view", "min_visibility", "backgrounds",
-        "background_photos", "blur_px", "colour_jitter", "hue_deg", "device", "seed"),
+        "background_photos", "occluders", "blur_px", "colour_jitter", "hue_deg", "device", "seed"),
         data={"action": "append", "nargs": None, "help": "BOP dataset root (repeatable)"})
     p.set_defaults(func=cmd_train_zoom)
 
