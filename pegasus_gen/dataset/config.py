@@ -72,6 +72,9 @@ class TrajectoryConfig(_Strict):
     jitter: float = Field(default=0.03, ge=0.0, le=1.0)  # m of random aim offset
     # key poses are redrawn until the environment fills this fraction of the view (0: accept any)
     min_view_coverage: float = Field(default=0.97, ge=0.0, le=1.0)
+    # share of the scenes whose key poses are chosen (of all their tries) to show the labelled objects nearest to
+    # half hidden by the other objects (scene.Hiding): occluded views, as on a cluttered desk
+    occlusion: float = Field(default=0.0, ge=0.0, le=1.0)
 
     @model_validator(mode="after")
     def _ranges(self):

@@ -73,20 +73,24 @@ def orbit_key_poses(target: np.ndarray, rng: np.random.Generator, count: int,
                     distance: tuple[float, float] = (0.4, 0.8), elevation_deg: tuple[float, float] = (20.0, 70.0),
                     azimuth_span_deg: float = 360.0, jitter: float = 0.02,
                     score: Callable[[np.ndarray], float] | None = None, min_score: float = 1.0,
-                    tries: int = 30) -> list[np.ndarray]:
+                    tries: int = 30, redraw_azimuth: bool = False) -> list[np.ndarray]:
     """``count`` random T_cam_world key poses on a spherical shell around ``target`` [3] (world, m),
     each looking at the target (plus up to ``jitter`` m of random aim offset), z up in the image.
 
     Azimuths advance in order over ``azimuth_span_deg`` so interpolated trajectories sweep around.
     With ``score`` (T_cam_world -> float), distance, elevation and aim are redrawn up to ``tries`` times
-    per key pose until the score reaches ``min_score``; the best draw is kept.
+    per key pose until the score reaches ``min_score``; the best draw is kept. With ``redraw_azimuth`` each try
+    also draws its azimuth anew within the key pose's share of the span (the order kept).
     """
     start = rng.uniform(0, 2 * np.pi)
     azimuths = start + np.sort(rng.uniform(0, np.radians(azimuth_span_deg), count))
+    share = np.radians(azimuth_span_deg) / count
     poses = []
-    for az in azimuths:
+    for k, az in enumerate(azimuths):
         best, best_score = None, -np.inf
         for _ in range(tries if score is not None else 1):
+            if redraw_azimuth:
+                az = start + share * (k + rng.uniform())
             d = rng.uniform(*distance)
             el = np.radians(rng.uniform(*elevation_deg))
             eye = np.asarray(target) + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])

@@ -71,6 +71,29 @@ class MeshRaycaster:
         return float((self.depth(K_coarse, T_cam_world, cols, rows) > 0).mean())
 
 
+class SceneRaycaster:
+    """Several triangle meshes in one frame (e.g. placed objects in the world) prepared once for casting rays at;
+    each ray's first hit says which of them it hit."""
+
+    def __init__(self, meshes: list[trimesh.Trimesh]):
+        self.scene = o3d.t.geometry.RaycastingScene()
+        ids = [self.scene.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, np.float32)),
+                                        o3d.core.Tensor(np.asarray(m.faces, np.uint32))) for m in meshes]
+        self._index = np.full(max(ids, default=0) + 1, -1, np.int64)
+        self._index[ids] = np.arange(len(ids))
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For the rays origins + t directions (``MeshRaycaster.cast``'s arrays): t [...] float32 of the first hit
+        (inf on a miss) and the index [...] int64 into the meshes of what it hit (-1 on a miss)."""
+        rays = _rays(origins, directions)
+        out = self.scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
+        ids = out["geometry_ids"].numpy().astype(np.int64)
+        hit = ids != o3d.t.geometry.RaycastingScene.INVALID_ID
+        index = np.full(ids.shape, -1, np.int64)
+        index[hit] = self._index[ids[hit]]
+        return out["t_hit"].numpy().reshape(rays.shape[:-1]), index.reshape(rays.shape[:-1])
+
+
 def _rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """[..., 6] float32 rays (origin, direction) of ``origins`` and ``directions`` [..., 3] broadcast together."""
     shape = np.broadcast_shapes(np.shape(origins), np.shape(directions))
