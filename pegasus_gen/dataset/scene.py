@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import trimesh
 
 from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.dataset.appearance import (
@@ -226,8 +227,6 @@ class Hiding:
     collision mesh in the world for ray casting."""
 
     def __init__(self, plan: ScenePlan, rng: np.random.Generator):
-        import trimesh
-
         kept = sorted(plan.drop.poses)
         placed = [plan.objects[i].mesh.copy().apply_transform(plan.drop.poses[i]) for i in kept]
         self.raycaster = SceneRaycaster(placed)
