@@ -62,6 +62,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from pydantic import ValidationError
 
 from dope_training.backgrounds import load_photos, photo_backed, split_photos
 from dope_training.checkpoint import load_checkpoint
@@ -202,13 +203,17 @@ def held_out_photos(folder: Path, held_out: Path, photo_folder: str | None, seed
 def trained_zoom(zoom: Path, cfg: ZoomConfig) -> Path:
     """The zoom network ``zoom`` of ``cfg``, trained unless one of the same fields is there (one of others is
     refused; ``zoom``.txt records them; the checkpoint is written when its training ends: one there is
-    finished)."""
-    record, wanted = zoom.with_suffix(".txt"), cfg.model_dump_json(indent=1)
-    if zoom.is_file() and record.is_file() and record.read_text() != wanted:
+    finished; a field the record lacks, newer than it, takes its default)."""
+    record = zoom.with_suffix(".txt")
+    try:
+        same = not record.is_file() or ZoomConfig.model_validate_json(record.read_text()) == cfg
+    except ValidationError:  # not a record of ZoomConfig's fields
+        same = False
+    if zoom.is_file() and not same:
         raise PegasusError(f"{zoom} was trained with other fields ({record}); remove it or choose another --out")
     if not zoom.is_file():
         train_zoom(cfg)
-        record.write_text(wanted)
+        record.write_text(cfg.model_dump_json(indent=1))
     return zoom
 
 

@@ -155,3 +155,24 @@ def test_benchmark_refuses_bad_zoom_fields_in_one_line_before_writing_anything(t
                          capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0, bad.stderr[-2000:]
     assert bad.stderr.startswith("error: ") and field.split("=")[0] in bad.stderr and not out.exists()
+
+
+def test_a_zoom_record_from_before_a_new_field_is_the_same_fields_and_another_or_a_broken_one_is_refused(
+        tmp_path, monkeypatch):
+    spec = importlib.util.spec_from_file_location("real_benchmark", ROOT / "benchmarks" / "real.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    trained = []
+    monkeypatch.setattr(bench, "train_zoom", lambda cfg: trained.append(cfg))
+    zoom = tmp_path / "zoom.pt"
+    zoom.write_bytes(b"a finished zoom network")
+    cfg = bench.ZoomConfig(data=["data"], object="1", out=str(zoom))
+    older = cfg.model_dump()
+    del older["occluders"]  # a record written before the field existed: its default then
+    zoom.with_suffix(".txt").write_text(json.dumps(older))
+    assert bench.trained_zoom(zoom, cfg) == zoom and trained == []  # reused, not trained again
+    for record in (json.dumps({**older, "occluders": 0.5}), "{not json"):
+        zoom.with_suffix(".txt").write_text(record)
+        with pytest.raises(bench.PegasusError, match="zoom.txt"):
+            bench.trained_zoom(zoom, cfg)
+    assert trained == []
