@@ -243,7 +243,7 @@ class Hiding:
 
     def hidden(self, eye: np.ndarray) -> np.ndarray:
         """[targets] the share of each labelled instance's points facing ``eye`` [3] (world, m) whose ray from the
-        eye first hits another placed object before the point (0 for an instance facing it with no point)."""
+        eye first hits another placed object before the point (0 where none of its points faces the eye)."""
         out = np.zeros(len(self.points))
         for n, (points, normals, k) in enumerate(zip(self.points, self.normals, self.mesh_index)):
             towards = eye - points

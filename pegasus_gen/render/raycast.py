@@ -1,8 +1,8 @@
 """Exact z-depth images of triangle meshes by ray casting (Open3D's Embree scene), independent of the splats.
 
 Used where a mesh is the truth: checking a dataset's masks and depth against its models (validate),
-measuring how much of a camera's view an environment fills (trajectories) and which splats placed objects
-shade (shadows).
+measuring how much of a camera's view an environment fills and how much of each object the others hide
+(trajectories) and which splats placed objects shade (shadows).
 """
 
 from __future__ import annotations
