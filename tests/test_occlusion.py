@@ -4,7 +4,6 @@ hidden, and datasets made with it hold objects less visible by BOP's own visib_f
 shares it measured following BOP's."""
 
 import json
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +12,8 @@ import trimesh
 from pegasus_gen.dataset.config import load_config
 from pegasus_gen.dataset.distractors import Distractor
 from pegasus_gen.dataset.generate import generate
-from pegasus_gen.dataset.scene import HIDDEN_WANTED, Hiding, hiding_score, load_assets, plan_scene
+from pegasus_gen.dataset.scene import load_assets, plan_scene
+from pegasus_gen.dataset.trajectory import HIDDEN_WANTED, Hiding, hiding_score
 from pegasus_gen.render.raycast import SceneRaycaster
 
 
@@ -48,9 +48,8 @@ def test_the_hidden_share_of_an_object_behind_another_agrees_with_a_slab_test(sh
     target = trimesh.creation.box((0.1, 0.1, 0.1))
     wall = trimesh.creation.box((0.02, 0.1, 0.1))
     poses = {0: _box_at(0.1, (0, 0, 0)), 1: _box_at(0.1, (0.15, shift, 0.0))}  # the wall in front along +x
-    plan = SimpleNamespace(objects=[Distractor("target", None, target, 1.0), Distractor("wall", None, wall, 1.0)],
-                           targets=1, drop=SimpleNamespace(poses=poses))
-    hiding = Hiding(plan, np.random.default_rng(0))
+    objects = [Distractor("target", None, target, 1.0), Distractor("wall", None, wall, 1.0)]
+    hiding = Hiding(objects, poses, 1, np.random.default_rng(0))
     eye = np.array([1.0, 0.02, 0.03])
     points, normals = hiding.points[0], hiding.normals[0]
     facing = ((eye - points) * normals).sum(axis=1) > 0
@@ -61,8 +60,7 @@ def test_the_hidden_share_of_an_object_behind_another_agrees_with_a_slab_test(sh
     assert facing.sum() >= 5
     assert hiding.hidden(eye)[0] == pytest.approx(expected, abs=1e-9)
     assert {0.0: 1.0, 0.3: 0.0}.get(shift, expected) == expected  # fully hidden; beside it, nothing hidden
-    wall_plan = SimpleNamespace(objects=plan.objects, targets=2, drop=plan.drop)  # both labelled: two shares
-    assert len(Hiding(wall_plan, np.random.default_rng(0)).hidden(eye)) == 2
+    assert len(Hiding(objects, poses, 2, np.random.default_rng(0)).hidden(eye)) == 2  # both labelled: two shares
 
 
 def test_the_score_peaks_at_the_wanted_share_and_falls_to_none_or_all_hidden():
@@ -78,7 +76,8 @@ def _hidden_shares(root, cfg) -> tuple[list[float], list[float]]:
     hidden share (1 - visib_fract)."""
     assets, measured, bop = load_assets(cfg), [], []
     for scene in sorted((root / "train_pbr").iterdir()):
-        hiding = Hiding(plan_scene(int(scene.name), cfg, assets), np.random.default_rng(0))
+        plan = plan_scene(int(scene.name), cfg, assets)
+        hiding = Hiding(plan.objects, plan.drop.poses, plan.targets, np.random.default_rng(0))
         cameras, info = (json.loads((scene / name).read_text()) for name in ("scene_camera.json",
                                                                              "scene_gt_info.json"))
         for im_id, camera in cameras.items():

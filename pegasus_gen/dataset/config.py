@@ -73,7 +73,7 @@ class TrajectoryConfig(_Strict):
     # key poses are redrawn until the environment fills this fraction of the view (0: accept any)
     min_view_coverage: float = Field(default=0.97, ge=0.0, le=1.0)
     # share of the scenes whose key poses are chosen (of all their tries) to show the labelled objects nearest to
-    # half hidden by the other objects (scene.Hiding): occluded views, as on a cluttered desk
+    # half hidden by the other objects (trajectory.Hiding): occluded views, as on a cluttered desk
     occlusion: float = Field(default=0.0, ge=0.0, le=1.0)
 
     @model_validator(mode="after")

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import trimesh
 
 from pegasus_gen.assets.library import Asset, AssetLibrary
 from pegasus_gen.dataset.appearance import (
@@ -35,12 +34,13 @@ from pegasus_gen.dataset.config import GenerateConfig
 from pegasus_gen.dataset.distractors import Distractor, make_distractor, object_palette
 from pegasus_gen.dataset.dope_json import dope_image, dope_object
 from pegasus_gen.dataset.physics import DropResult, drop_objects, packed_region, upright_quat_xyzw
+from pegasus_gen.dataset.trajectory import camera_trajectory
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats import bop
-from pegasus_gen.geometry.cameras import interpolate_poses, intrinsics, orbit_key_poses
+from pegasus_gen.geometry.cameras import intrinsics
 from pegasus_gen.io.files import write_atomic
 from pegasus_gen.io.images import rgb_to_uint8, write_image
-from pegasus_gen.render.raycast import MeshRaycaster, SceneRaycaster
+from pegasus_gen.render.raycast import MeshRaycaster
 from pegasus_gen.render.renderer import render
 from pegasus_gen.render.sensor import apply_sensor
 from pegasus_gen.render.shadows import contact_shadows, occluder
@@ -187,9 +187,6 @@ def frame_poses(plan: ScenePlan, im_id: int, dynamic: bool) -> dict[int, np.ndar
     return {i: plan.drop.poses[i] for i in kept}
 
 
-BLOCKING_MARGIN = 0.03  # m: the environment may come this close in front of an object's centre (its support)
-
-
 def object_depth_window(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: np.ndarray, K_canvas: np.ndarray,
                         width: int, height: int) -> bop.CanvasWindow:
     """The z-depth (m) of one placed object's model alone on the 3x canvas of calc_gt_info (0 where it is
@@ -214,84 +211,6 @@ def object_depth_window(model: MeshRaycaster, vertices: np.ndarray, T_cam_obj: n
     K_window[0, 2] -= x0
     K_window[1, 2] -= y0
     return bop.CanvasWindow(model.depth(K_window, T_cam_obj, x1 - x0, y1 - y0), int(x0), int(y0))
-
-
-HIDDEN_WANTED = 0.5  # the share of a labelled object's side facing the camera that occluding key poses seek hidden
-HIDING_POINTS = 48  # points on each labelled object's surface that the share is measured at
-HIDING_MARGIN = 0.005  # m: a hit this close before a point is the point's own surface
-
-
-class Hiding:
-    """How much of each labelled instance of a scene the other placed objects and distractors hide from an eye:
-    ``HIDING_POINTS`` points on its surface (world frame, m) with their normals, and every placed object's
-    collision mesh in the world for ray casting."""
-
-    def __init__(self, plan: ScenePlan, rng: np.random.Generator):
-        kept = sorted(plan.drop.poses)
-        placed = [plan.objects[i].mesh.copy().apply_transform(plan.drop.poses[i]) for i in kept]
-        self.raycaster = SceneRaycaster(placed)
-        self.points, self.normals, self.mesh_index = [], [], []
-        for k, i in enumerate(kept):
-            if i >= plan.targets:
-                continue
-            obj, pose = plan.objects[i], plan.drop.poses[i]
-            surface = obj.surface if obj.surface is not None else obj.mesh
-            points, faces = trimesh.sample.sample_surface(surface, HIDING_POINTS, seed=int(rng.integers(2**31)))
-            self.points.append(points @ pose[:3, :3].T + pose[:3, 3])
-            self.normals.append(surface.face_normals[faces] @ pose[:3, :3].T)
-            self.mesh_index.append(k)
-
-    def hidden(self, eye: np.ndarray) -> np.ndarray:
-        """[targets] the share of each labelled instance's points facing ``eye`` [3] (world, m) whose ray from the
-        eye first hits another placed object before the point (0 where none of its points faces the eye)."""
-        out = np.zeros(len(self.points))
-        for n, (points, normals, k) in enumerate(zip(self.points, self.normals, self.mesh_index)):
-            towards = eye - points
-            facing = (normals * towards).sum(axis=1) > 0
-            if not facing.any():
-                continue
-            distance = np.linalg.norm(towards[facing], axis=1)
-            t, index = self.raycaster.first_hit(eye, -towards[facing] / distance[:, None])
-            out[n] = np.mean((index >= 0) & (index != k) & (t < distance - HIDING_MARGIN))
-        return out
-
-
-def hiding_score(hidden: np.ndarray) -> float:
-    """0..1: how near the shares ``hidden`` [targets] lie to ``HIDDEN_WANTED`` on average (1 there, 0 at none
-    or all hidden)."""
-    if not len(hidden):
-        return 0.0
-    return float(np.mean(np.minimum(hidden / HIDDEN_WANTED, (1.0 - hidden) / (1.0 - HIDDEN_WANTED))))
-
-
-def camera_trajectory(plan: ScenePlan, cfg: GenerateConfig, K: np.ndarray, scene_id: int) -> list[np.ndarray]:
-    """T_cam_world per frame: key poses around the objects' centre, interpolated. Key poses must see every
-    object's centre unblocked by the environment, and are redrawn until the environment fills at least
-    ``trajectory.min_view_coverage`` of the image (else the best draw is kept). In ``trajectory.occlusion`` of
-    the scenes (drawn per scene) every try, its azimuth redrawn too, is scored, and the draw kept that also has the
-    labelled objects nearest to half hidden by the other objects (``Hiding``, ``hiding_score``)."""
-    t = cfg.trajectory
-    centres = np.array([pose[:3, 3] for pose in plan.drop.poses.values()])
-    W, H = cfg.camera.width, cfg.camera.height
-    environment = MeshRaycaster(plan.environment.mesh)
-    rng = np.random.default_rng([cfg.seed, scene_id, OCCLUSION_STREAM])
-    hiding = Hiding(plan, rng) if t.occlusion > 0 and rng.uniform() < t.occlusion else None
-
-    def score(T_cam_world: np.ndarray) -> float:
-        eye = -T_cam_world[:3, :3].T @ T_cam_world[:3, 3]
-        distances = np.linalg.norm(centres - eye, axis=1)
-        blocked = environment.cast(eye, (centres - eye) / distances[:, None]) < distances - BLOCKING_MARGIN
-        coverage = environment.view_coverage(K, T_cam_world, W, H) if t.min_view_coverage > 0 else 1.0
-        if hiding is None:
-            return coverage - float(blocked.any())  # any unblocked view beats every blocked one
-        # enough of the environment in view counts as much as all of it; then the objects' hiding decides
-        return min(coverage, t.min_view_coverage) - float(blocked.any()) + hiding_score(hiding.hidden(eye))
-
-    keys = orbit_key_poses(centres.mean(axis=0), plan.rng, t.key_poses, t.distance, t.elevation_deg,
-                           t.azimuth_span_deg, t.jitter, score=score,
-                           min_score=t.min_view_coverage + (1.0 if hiding is not None else 0.0),
-                           redraw_azimuth=hiding is not None)
-    return interpolate_poses(keys, cfg.frames_per_scene)
 
 
 @dataclass
@@ -405,7 +324,8 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
         raise PegasusError(f"scene {scene_id}: every object left the support of {env.name} in {DROP_ATTEMPTS} drops "
                            "(a support too small for them?)")
     K = camera_matrix(cfg)
-    cams = camera_trajectory(plan, cfg, K, scene_id)
+    cams = camera_trajectory(env.mesh, objects, drop.poses, plan.targets, cfg, K, plan.rng,
+                             np.random.default_rng([cfg.seed, scene_id, OCCLUSION_STREAM]))
     W, H = cfg.camera.width, cfg.camera.height
     K_canvas = K.copy()
     K_canvas[0, 2] += W
