@@ -87,6 +87,7 @@ def camera_trajectory(environment: trimesh.Trimesh, objects: list, poses: dict[i
         # enough of the environment in view counts as much as all of it; then the objects' hiding decides
         return min(coverage, t.min_view_coverage) - float(blocked.any()) + hiding_score(hiding.hidden(eye))
 
+    # an occluding scene's tries stop early only at a perfect score (every object exactly half hidden)
     keys = orbit_key_poses(centres.mean(axis=0), keys_rng, t.key_poses, t.distance, t.elevation_deg,
                            t.azimuth_span_deg, t.jitter, score=score,
                            min_score=t.min_view_coverage + (1.0 if hiding is not None else 0.0),
