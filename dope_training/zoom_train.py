@@ -153,7 +153,7 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     aug = Augment(blur_px=cfg.blur_px, brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
                   saturation=cfg.colour_jitter, hue_deg=cfg.hue_deg)
     outputs = WITH_ROTATION if cfg.rotation else POSITION
-    net = ZoomNet(cfg.crop_px, outputs, view=cfg.view).to(device)
+    net = ZoomNet(cfg.crop_px, outputs, view=cfg.view).to(device, memory_format=torch.channels_last)
     n = len(samples["crops"])
     batches = max(n // cfg.batch_size, 1)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
