@@ -42,6 +42,8 @@ from pegasus_gen.geometry.cuboid import cuboid_points, project_points
 from pegasus_gen.io.files import read_json
 from pegasus_gen.io.images import read_rgb
 
+HIDDEN_VISIBILITY = 0.8  # an instance seen less than this (BOP visib_fract) counts as partly hidden
+
 
 @dataclass
 class Sample:

@@ -39,7 +39,7 @@ from tqdm import tqdm
 from dope_training.backbone import load_pretrained
 from dope_training.backgrounds import load_photos, split_photos
 from dope_training.checkpoint import CHECKPOINT_FORMAT, TargetObject, load_checkpoint
-from dope_training.data import Augment, DopeDataset, load_bop, load_ndds, resolve_objects
+from dope_training.data import HIDDEN_VISIBILITY, Augment, DopeDataset, load_bop, load_ndds, resolve_objects
 from dope_training.keypoints import surface_keypoints
 from dope_training.model import (
     DopeNetwork,
@@ -132,20 +132,33 @@ def learning_rate(cfg: TrainConfig, step: int, total_steps: int) -> float:
 
 class ShardSampler(torch.utils.data.Sampler):
     """This rank's share of a permutation of range(n) drawn from (seed, epoch), as (epoch, index) keys of
-    :class:`DopeDataset`: ranks together visit every index exactly once per epoch."""
+    :class:`DopeDataset`: ranks together visit every index exactly once per epoch. With ``weights`` [n] (>= 0, not
+    all 0) each epoch is instead n draws with replacement, index i with probability weights[i] / sum(weights)."""
 
-    def __init__(self, n: int, rank: int = 0, world: int = 1, seed: int = 0):
+    def __init__(self, n: int, rank: int = 0, world: int = 1, seed: int = 0, weights: np.ndarray | None = None):
         self.n, self.rank, self.world, self.seed, self.epoch = n, rank, world, seed, 0
+        self.p = None if weights is None else np.asarray(weights, float) / np.sum(weights)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
 
     def __iter__(self):
-        order = np.random.default_rng([self.seed, self.epoch]).permutation(self.n)
+        rng = np.random.default_rng([self.seed, self.epoch])
+        order = rng.permutation(self.n) if self.p is None else rng.choice(self.n, self.n, p=self.p)
         return iter((self.epoch, i) for i in order[self.rank::self.world].tolist())
 
     def __len__(self) -> int:
         return len(range(self.rank, self.n, self.world))
+
+
+def hidden_weights(samples: list, share: float) -> np.ndarray | None:
+    """Draw weights [len(samples)] that give the samples with an instance under HIDDEN_VISIBILITY visible ``share``
+    of the draws and the rest the remainder, each sample of a group alike; None (every sample once per epoch) for
+    ``share`` 0 or where one of the groups is empty."""
+    hidden = np.array([any(v < HIDDEN_VISIBILITY for v in s.visibility) for s in samples])
+    if share <= 0 or hidden.all() or not hidden.any():
+        return None
+    return np.where(hidden, share / hidden.sum(), (1 - share) / (~hidden).sum())
 
 
 def _distributed() -> tuple[int, int, int]:
@@ -325,7 +338,7 @@ def _train(cfg: TrainConfig, resume: bool, rank: int, world: int, local_rank: in
     # 608x456 with masks take 8 GB; read from disk, the CPU step ran at 46 crops/s instead of 61)
     if not dataset.preload(memory_limit(torch.device("cpu")) // (2 * world)) and rank == 0:
         print("note: the training frames do not fit in half the memory: read from disk for every crop")
-    sampler = ShardSampler(len(dataset), rank, world, cfg.seed)
+    sampler = ShardSampler(len(dataset), rank, world, cfg.seed, hidden_weights(samples, cfg.hidden_share))
     workers = loader_workers(cfg, device)  # started once: the sampler's keys carry the epoch to them
     loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=sampler, num_workers=workers,
                                          pin_memory=device.type == "cuda", persistent_workers=workers > 0)

@@ -63,6 +63,9 @@ class TrainConfig(BaseModel):
     negatives: float = Field(0.0, ge=0.0, le=1.0, description="share of crops centred on a random point of the image "
                              "instead of an instance, images without the object included: background and clutter "
                              "where nothing is to be found (BOP data)")
+    hidden_share: float = Field(0.0, ge=0.0, lt=1.0, description="share of each epoch's draws given to the frames "
+                                "where the object is under 0.8 visible (BOP visib_fract), drawn with replacement; 0: "
+                                "every frame once per epoch")
     occluders: float = Field(0.0, ge=0.0, le=1.0, description="share of the crops on an instance with a cut-out of "
                              "another training image pasted over part of it (its targets kept): partly hidden "
                              "objects")

@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -36,7 +37,7 @@ from dope_training.export import export_checkpoint
 from dope_training.infer import DopeModel, on_centroid_ray
 from dope_training.model import build_model
 from dope_training.targets import distance_code, off_axis_factor
-from dope_training.train import ShardSampler, TrainConfig, crop_augment, loader_workers, train
+from dope_training.train import ShardSampler, TrainConfig, crop_augment, hidden_weights, loader_workers, train
 from pegasus_gen.cli.main import main
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.cuboid import cuboid_points
@@ -207,6 +208,30 @@ def test_shards_cover_every_index_once_per_epoch():
     a, b = ShardSampler(10), ShardSampler(10)
     b.set_epoch(1)
     assert list(a) != list(b)
+
+
+def test_hidden_share_gives_the_partly_hidden_frames_their_share_of_the_draws():
+    # 50 frames, 5 with an instance under 0.8 visible (one of them beside one in full view) and 5 empty (negatives)
+    visibility = [[0.5], [0.79, 1.0], [0.3], [0.1], [0.6]] + [[1.0], [0.8], [0.95, 0.99]] * 10 + [[0.9]] * 5 + [[]] * 5
+    samples = [Sample(Path(f"{i}.png"), np.eye(3), visibility=v) for i, v in enumerate(visibility)]
+    assert hidden_weights(samples, 0.0) is None and hidden_weights(samples[5:], 0.4) is None
+    hidden = np.zeros(len(samples), bool)
+    hidden[:5] = True
+    for share in (0.05, 0.4, 0.7):
+        weights = hidden_weights(samples, share)
+        draws = []
+        for epoch in range(200):
+            shards = []
+            for rank in range(2):
+                sampler = ShardSampler(len(samples), rank, 2, seed=3, weights=weights)
+                sampler.set_epoch(epoch)
+                shards += [i for _, i in sampler]
+            assert len(shards) == len(samples)  # an epoch's length stays the data's
+            draws += shards
+        # 10,000 draws: the binomial's std is at most 0.005
+        assert abs(hidden[draws].mean() - share) < 0.02
+        counts = np.bincount(draws, minlength=len(samples))
+        assert counts[:5].min() > 0.6 * counts[:5].mean() and counts[5:].min() > 0.6 * counts[5:].mean()
 
 
 def test_torchrun_ddp_on_cpu_sees_each_image_once_per_epoch(dope_dataset, tmp_path):
