@@ -177,8 +177,8 @@ def add_commands(sub) -> None:
         "data", "object", "out", "split", "variant", "frozen_blocks", "batch_norm", "epochs", "batch_size", "size",
         "focal_px", "lr", "schedule", "peak_weight", "keypoints", "surface_points", "symmetry_axis", "min_visibility",
         "negatives", "occluders", "hidden_share", "backgrounds", "background_photos", "blur_px", "blur_linear_light",
-        "colour_jitter", "hue_deg", "augment", "device", "amp", "loader_workers", "seed", "vgg19", "object_size", "distance_head",
-        "distance_off_axis", "distance_grad"),
+        "colour_jitter", "hue_deg", "augment", "device", "amp", "loader_workers", "seed", "vgg19", "object_size",
+        "distance_head", "distance_off_axis", "distance_grad"),
         data={"action": "append", "nargs": None, "help": "BOP dataset root or DOPE/NDDS folder (repeatable)"},
         batch_norm={"action": argparse.BooleanOptionalAction},
         object_size={"metavar": ("X", "Y", "Z")}, symmetry_axis={"metavar": ("X", "Y", "Z")})

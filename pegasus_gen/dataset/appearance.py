@@ -15,7 +15,9 @@ from typing import NamedTuple
 import numpy as np
 
 from pegasus_gen.dataset.config import AppearanceConfig
+from pegasus_gen.dataset.distractors import object_palette
 from pegasus_gen.render.sensor import SensorEffects
+from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.colour import hue_rotation
 from pegasus_gen.splats.procedural import random_texture
 
@@ -31,11 +33,16 @@ def environment_tint(cfg: AppearanceConfig, rng: np.random.Generator) -> np.ndar
     return np.diag(rng.uniform(*cfg.environment_tint, 3))
 
 
-def environment_texture(cfg: AppearanceConfig, rng: np.random.Generator):
+def environment_texture(cfg: AppearanceConfig, rng: np.random.Generator, objects: list[SplatCloud] = ()):
     """(texture function points [N, 3] -> rgb [N, 3], blend weight) repainting the environment, for a share
-    ``cfg.retexture`` of scenes; None for the others."""
+    ``cfg.retexture`` of scenes; None for the others. A share ``cfg.texture_object_colours`` of the repainted ones
+    take one or two colours of the scene's ``objects`` (``distractors.object_palette``); the draws of the others are
+    the same as without it."""
     repaint = rng.uniform() < cfg.retexture
     texture, weight = random_texture(rng, cfg.texture_period), float(rng.uniform(*cfg.texture_weight))
+    if repaint and objects and cfg.texture_object_colours > 0 and rng.uniform() < cfg.texture_object_colours:
+        palette = object_palette(objects, rng)
+        texture = random_texture(rng, cfg.texture_period, palette[rng.integers(len(palette), size=rng.integers(1, 3))])
     return (texture, weight) if repaint else None
 
 

@@ -150,6 +150,9 @@ class AppearanceConfig(_Strict):
     retexture: float = Field(default=0.0, ge=0.0, le=1.0)
     texture_period: Annotated[Range, _range(0.001, 10.0)] = (0.02, 0.15)
     texture_weight: Annotated[Range, _range(0.0, 1.0)] = (0.5, 1.0)
+    # share of the repainted environments whose texture takes one or two of the scene's objects' own colours (a
+    # surface the objects blend into, as a photo's object on a cloth of its colour) instead of random ones
+    texture_object_colours: float = Field(default=0.0, ge=0.0, le=1.0)
     # share of scenes whose objects (and distractors) are lit by a distant light from a random direction 20-90
     # degrees above the horizon: each splat's colour x (ambient + (1 - ambient) 1.5 max(0, n . light)), the
     # ambient share drawn from object_ambient (splats.colour.shade_lambert)

@@ -225,13 +225,14 @@ class SceneLooks:
     light: ObjectLight | None = None
 
 
-def scene_looks(cfg: GenerateConfig, scene_id: int, count: int) -> SceneLooks | None:
-    """The appearance draws of scene ``scene_id`` with ``count`` kept objects (None without randomisation)."""
+def scene_looks(cfg: GenerateConfig, scene_id: int, count: int, labelled: list[SplatCloud]) -> SceneLooks | None:
+    """The appearance draws of scene ``scene_id`` with ``count`` kept objects, the ``labelled`` ones among them
+    given (None without randomisation)."""
     if not cfg.appearance.enabled:
         return None
     rng = np.random.default_rng([cfg.seed, scene_id, APPEARANCE_STREAM])
     return SceneLooks(environment_tint(cfg.appearance, rng), object_colour_transforms(cfg.appearance, count, rng),
-                      environment_texture(cfg.appearance, rng),
+                      environment_texture(cfg.appearance, rng, labelled),
                       object_light(cfg.appearance, np.random.default_rng([cfg.seed, scene_id, LIGHT_STREAM])))
 
 
@@ -334,7 +335,7 @@ def render_scene(scene_dir: Path, scene_id: int, cfg: GenerateConfig, assets: As
         (scene_dir / sub).mkdir(parents=True)
     scene_gt, scene_camera, scene_info = {}, {}, {}
     coco_images, coco_instances = [], []
-    looks = scene_looks(cfg, scene_id, len(kept))
+    looks = scene_looks(cfg, scene_id, len(kept), [objects[i].splats for i in labelled])
     shadowed = shadowed_scene(cfg, scene_id)
     environment, placed, normals = None, None, None
     writer = _Writer()
