@@ -2,6 +2,7 @@
 properties of their physics, and randomised datasets that repeat from their seed and keep their labels."""
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -11,7 +12,7 @@ from conftest import random_cloud
 from scipy.spatial.transform import Rotation
 from test_generate import config, dataset_files
 
-from pegasus_gen.dataset.appearance import frame_effects, image_motion, object_colour_transforms
+from pegasus_gen.dataset.appearance import environment_texture, frame_effects, image_motion, object_colour_transforms
 from pegasus_gen.dataset.config import AppearanceConfig
 from pegasus_gen.dataset.validate import validate
 from pegasus_gen.geometry.cameras import intrinsics_from_fov, look_at
@@ -55,6 +56,30 @@ def test_a_blend_moves_the_colour_towards_the_texture_from_every_direction(rng):
     for weight in (0.0, 0.3, 1.0):
         np.testing.assert_allclose(colour(blend_colour(cloud, texture, weight), dirs),
                                    (1 - weight) * colour(cloud, dirs) + weight * texture, atol=1e-4)
+
+
+def test_a_texture_in_the_objects_colours_takes_only_their_colours_and_leaves_the_default_draws_alone(rng):
+    points = rng.uniform(-1, 1, (2000, 3))
+    red, teal = np.array([0.8, 0.2, 0.1]), np.array([0.1, 0.6, 0.6])
+    objects = []
+    for c in (red, teal):  # clouds of one colour each
+        cloud = random_cloud(rng, 200, sh_degree=0)
+        objects.append(replace(cloud, sh=np.tile(shlib.rgb_to_sh_dc(c)[None, None], (200, 1, 1))))
+    always = AppearanceConfig(retexture=1.0, texture_object_colours=1.0)
+    for seed in range(8):
+        texture, _ = environment_texture(always, np.random.default_rng(seed), objects)
+        colours = np.unique(np.round(texture(points), 6), axis=0)
+        assert all(np.allclose(c, red, atol=1e-6) or np.allclose(c, teal, atol=1e-6) for c in colours)
+        texture, _ = environment_texture(AppearanceConfig(retexture=1.0), np.random.default_rng(seed), objects)
+        assert not any(np.allclose(c, red, atol=1e-3) or np.allclose(c, teal, atol=1e-3)
+                       for c in np.unique(np.round(texture(points), 6), axis=0))
+    # off (the default) or not repainted: the same draws as without the objects, and the scene's stream as far on
+    for cfg in (AppearanceConfig(retexture=1.0), AppearanceConfig(retexture=0.0, texture_object_colours=1.0)):
+        a, b = np.random.default_rng(5), np.random.default_rng(5)
+        with_objects, without = environment_texture(cfg, a, objects), environment_texture(cfg, b)
+        assert (with_objects is None) == (without is None) and a.uniform() == b.uniform()
+        if without is not None:
+            np.testing.assert_array_equal(with_objects[0](points), without[0](points))
 
 
 def test_lambert_shading_lights_the_side_facing_the_light_and_keeps_ambient_behind():
