@@ -286,7 +286,7 @@ def test_a_light_on_the_objects_shades_only_the_objects_and_leaves_the_other_dra
     options = ["scenes=1", "frames_per_scene=2", "appearance.enabled=true", "shadows.enabled=false"]
     cfg_dark, cfg_lit = (config(library, tmp_path / n, *options, f"appearance.object_light={v}")
                          for n, v in (("dark", 0), ("lit", 1)))
-    dark, lit = scene_looks(cfg_dark, 0, 3), scene_looks(cfg_lit, 0, 3)
+    dark, lit = scene_looks(cfg_dark, 0, 3, []), scene_looks(cfg_lit, 0, 3, [])
     assert dark.light is None and lit.light is not None and 0.35 <= lit.light[1] <= 0.75
     assert np.isclose(np.linalg.norm(lit.light[0]), 1) and lit.light[0][2] >= np.sin(np.radians(20)) - 1e-9
     assert np.array_equal(dark.environment, lit.environment)  # the light has its own stream
@@ -306,7 +306,7 @@ def test_highlights_brighten_only_the_lit_objects_and_change_no_other_draw(libra
                "appearance.object_light=1"]
     matte, glossy = (config(library, tmp_path / n, *options, f"appearance.object_specular=[{v}, {v}]")
                      for n, v in (("matte", 0), ("glossy", 0.8)))
-    a, b = scene_looks(matte, 0, 3), scene_looks(glossy, 0, 3)
+    a, b = scene_looks(matte, 0, 3, []), scene_looks(glossy, 0, 3, [])
     assert a.light.specular == 0 and b.light.specular == 0.8 and 8 <= b.light.shininess <= 48
     assert np.array_equal(a.light.direction, b.light.direction) and a.light.ambient == b.light.ambient
     one, two = (generate_dataset(library, tmp_path / n, *options, f"appearance.object_specular=[{v}, {v}]")
