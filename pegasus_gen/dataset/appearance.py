@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pegasus_gen.dataset.config import AppearanceConfig
-from pegasus_gen.dataset.distractors import object_palette
+from pegasus_gen.dataset.distractors import object_palette, palette_colours
 from pegasus_gen.render.sensor import SensorEffects
 from pegasus_gen.splats.cloud import SplatCloud
 from pegasus_gen.splats.colour import hue_rotation
@@ -41,8 +41,7 @@ def environment_texture(cfg: AppearanceConfig, rng: np.random.Generator, objects
     repaint = rng.uniform() < cfg.retexture
     texture, weight = random_texture(rng, cfg.texture_period), float(rng.uniform(*cfg.texture_weight))
     if repaint and objects and cfg.texture_object_colours > 0 and rng.uniform() < cfg.texture_object_colours:
-        palette = object_palette(objects, rng)
-        texture = random_texture(rng, cfg.texture_period, palette[rng.integers(len(palette), size=rng.integers(1, 3))])
+        texture = random_texture(rng, cfg.texture_period, palette_colours(object_palette(objects, rng), rng))
     return (texture, weight) if repaint else None
 
 

@@ -51,6 +51,11 @@ def object_palette(clouds: list[SplatCloud], rng: np.random.Generator) -> np.nda
     return np.clip(sh_dc_to_rgb(dc), 0.0, 1.0)
 
 
+def palette_colours(palette: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """rgb [1 or 2, 3]: one or two colours drawn from ``palette`` [P, 3]."""
+    return palette[rng.integers(len(palette), size=int(rng.integers(1, 3)))]
+
+
 def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int,
                     palette: np.ndarray | None = None) -> Distractor:
     """A random box, cylinder or sphere whose largest extent is drawn from ``cfg.size`` (m), textured: with
@@ -58,7 +63,7 @@ def make_distractor(cfg: DistractorConfig, rng: np.random.Generator, index: int,
     of the palette's colours, a look-alike of the objects' colour without their shape; else in random colours."""
     colours = None
     if cfg.object_colours > 0 and palette is not None and rng.random() < cfg.object_colours:
-        colours = palette[rng.integers(len(palette), size=int(rng.integers(1, 3)))]
+        colours = palette_colours(palette, rng)
     size = rng.uniform(*cfg.size)
     kind = ("box", "cylinder", "sphere")[int(rng.integers(3))]
     if kind == "box":
