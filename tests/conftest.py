@@ -2,6 +2,7 @@ import os
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -29,6 +30,17 @@ def one_line_error(capsys):
     lines = [line for line in err.strip().splitlines() if not line.startswith(("generate:", "validate:", "view:"))]
     assert len(lines) == 1 and lines[0].startswith("pegasus: error: ") and "Traceback" not in err, err
     return lines[0]
+
+
+def assert_covers_the_silhouette(splat_mask: np.ndarray, mesh_mask: np.ndarray, what: str) -> None:
+    """A classic (not antialiased) splat render's mask [H, W] bool against the mesh's silhouette [H, W] bool: it
+    covers the whole silhouette and overhangs its outline by about a pixel (the splats' low-pass). Measured on the
+    demo objects and on boxes, cylinders and tori at 320x240: every mesh pixel covered, at most 3 % of the splats'
+    pixels beyond one pixel of it, 0.2 % beyond two."""
+    near = [cv2.dilate(mesh_mask.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0 for r in (1, 2)]
+    assert (splat_mask & mesh_mask).sum() >= 0.99 * mesh_mask.sum(), f"{what}: silhouette not covered"
+    assert (splat_mask & ~near[0]).sum() <= 0.06 * splat_mask.sum(), f"{what}: more than a pixel beyond"
+    assert (splat_mask & ~near[1]).sum() <= 0.01 * splat_mask.sum(), f"{what}: more than two pixels beyond"
 
 
 @pytest.fixture

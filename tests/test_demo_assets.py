@@ -3,6 +3,7 @@
 import numpy as np
 import pybullet as pb
 import pytest
+from conftest import assert_covers_the_silhouette
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
@@ -76,5 +77,4 @@ def test_dropped_object_rests_stably_and_its_splats_match_its_mesh(library, obj_
         cam = look_at(target + eye, target)
         splat_mask = render(asset.splats.transformed(T), K, cam, w, h, device="cpu").alpha > 0.5
         mesh_mask = mesh_silhouette(asset.mesh.vertices @ T[:3, :3].T + T[:3, 3], asset.mesh.faces, K, cam, w, h)
-        iou = (splat_mask & mesh_mask).sum() / (splat_mask | mesh_mask).sum()
-        assert iou >= 0.95, f"{asset.name}: IoU {iou:.3f}"
+        assert_covers_the_silhouette(splat_mask, mesh_mask, asset.name)
