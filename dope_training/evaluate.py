@@ -20,7 +20,7 @@ instance, the false positives that remain when the counts are known.
 With depth refinement
 (``refine``) the refined poses are matched and scored the same way, a rejected refinement being a miss.
 With refinement against the RGB image (``refine_rgb``: the silhouette of the dataset's model of the object
-fitted to the image's colour edges, ``dope_training.refine_rgb``; a pose a zoom network placed only turned) the whole
+fitted to the image's colour edges, ``dope_training.refine_rgb``; after the zoom network where there is one) the whole
 report is that of the refined poses, each scored by its detection score (``decode``: centroid and corners) times
 the share of its outline the image supports (``RgbRefinement.support``), and ``min_score`` applies to that score.
 The report's ``estimates`` are the poses output for the evaluated images in BOP19's results form (scene_id, im_id,

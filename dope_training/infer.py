@@ -17,9 +17,7 @@ refinement starts on the same ray with the object's own axes (the several-start 
 rotations), and it is kept when the depth confirms it. With the object's mesh instead, each solved pose is
 refined against the RGB image itself (``refine_rgb``: its silhouette fitted to the image's colour edges). With a
 zoom network (``zoom``: a second, zoomed-in look at each estimate that moves its centre and distance), each solved
-pose is moved by it first, before either refinement; the refinement against the RGB image then turns the pose only
-(``RgbRefineParams.turn_only``): the zoom's centre and distance stay, which the outline of a half-hidden object
-reads too far (docs/TRAINING.md runs EE and AL).
+pose is moved by it first, before either refinement.
 """
 
 from __future__ import annotations
@@ -40,7 +38,7 @@ from dope_training.keypoints import object_keypoints
 from dope_training.model import check_memory, config_from_dict, memory_estimate, torch_device
 from dope_training.pnp import solve_pose_consensus
 from dope_training.refine import Refinement, refine_multistart
-from dope_training.refine_rgb import RgbRefinement, RgbRefineParams, refine_rgb
+from dope_training.refine_rgb import RgbRefinement, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, off_axis_factor, read_map
 from dope_training.zoom import ZoomRefiner
 from dope_training.zoom import load as load_zoom
@@ -305,6 +303,6 @@ class DopeModel:
                 if pose.T is None and not pose.refinement.accepted:
                     continue
             elif mesh is not None:
-                pose.rgb_refinement = refine_rgb(image, K, T, *mesh, RgbRefineParams(turn_only=self.zoom is not None))
+                pose.rgb_refinement = refine_rgb(image, K, T, *mesh)
             poses.append(pose)
         return poses

@@ -25,9 +25,6 @@ Each iteration:
    most ``tukey_from_px``, given no weight beyond ``tukey_px`` (Tukey's biweight: lines where an occluder ends
    the object, which would pull the outline in and the distance out, stop counting once the outline is close).
 
-With ``turn_only`` the twist's translation is held at zero: only the rotation about the object's centre moves
-(for a pose whose centre and distance a zoom network has placed).
-
 The search half-length shrinks stage by stage (``half_length_px``). Only the outline is used: a rotation that
 leaves the silhouette unchanged (a symmetric object turned about its axis, a face seen edge-on) stays as DOPE
 read it. ``support`` (the share of lines whose edge lay within ``support_px`` of the outline in the last
@@ -66,7 +63,6 @@ class RgbRefineParams:
     damping: float = 0.2  # Marquardt damping: each pose parameter's curvature (the normal equations' diagonal) x this
     min_contrast: float = 4.0  # lines whose edge explains them better by fewer nats weigh proportionally less
     support_px: float = 2.0  # a line supports the final pose when its edge lies within this many pixels
-    turn_only: bool = False  # only the rotation (about the object's centre) moves; the centre stays where it was
 
 
 @dataclass
@@ -278,9 +274,8 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
         f = K[0, 0]
         radius_px = max(np.linalg.norm(uv - uv.mean(0), axis=1).max(), 4.0)
         steps = params.step_px * np.r_[[1.0 / radius_px] * 3, [z / f] * 2, z / radius_px]
-        free = 3 if params.turn_only else 6
-        J = np.empty((len(targets), free))
-        for i in range(free):
+        J = np.empty((len(targets), 6))
+        for i in range(6):
             delta = np.zeros(6)
             delta[i] = steps[i]
             moved = mesh_silhouette(local, faces, roi.K, _twist(T, delta), roi.w, roi.h)
@@ -299,7 +294,7 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
             delta = -np.linalg.solve(H + params.damping * np.diag(scale), g)
         except np.linalg.LinAlgError:
             break
-        T = _twist(T, np.r_[delta, np.zeros(6 - free)])
+        T = _twist(T, delta)
         support = float(np.mean(np.abs(residual) <= params.support_px))
         done += 1
     return RgbRefinement(_centred(T, -centre), support, done)

@@ -1,6 +1,7 @@
 """Refinement against the RGB image: a pose a few degrees and per cent off comes back to the silhouette the image
 shows, the right pose stays (a third of the object hidden too), an edge is found to a fraction of a pixel
-whatever the blur, turning only keeps the object's centre, and bad input is refused."""
+whatever the blur, the distance is read without bias from an image whose outline a camera's pixels average, and
+bad input is refused."""
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from scipy.special import erf
 from dope_training.refine_rgb import RgbRefineParams, _steepest, decimated, refine_rgb
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.geometry.pose_error import add_error
-from pegasus_gen.render.silhouette import mesh_silhouette
+from pegasus_gen.render.silhouette import mesh_coverage, mesh_silhouette
 
 K = np.array([[570.0, 0, 320], [0, 570.0, 240], [0, 0, 1]])
 
@@ -119,21 +120,17 @@ def test_an_object_outside_the_image_comes_back_unchanged_and_a_grey_image_is_re
         refine_rgb(image[..., 0], K, T, vertices, faces)
 
 
-def test_turn_only_turns_towards_the_silhouette_and_keeps_the_centre():
+def test_the_distance_is_read_without_bias_from_an_antialiased_outline():
+    # the photo as a camera takes it: each pixel the share of it the object covers (8 x 8 samples), blended between
+    # the object's colour and a plain background; started at the truth, the refined distance stays (measured:
+    # x0.999-1.003 over these seeds, median x1.0005; a silhouette half a pixel too large, as a conservative polygon
+    # fill draws it, read them x1.005-1.020, median x1.009)
     vertices, faces = _object()
-    centre = (vertices.min(0) + vertices.max(0)) / 2
-    before, after = [], []
-    for seed in range(4):
+    ratios = []
+    for seed in range(6):
         T = _truth(seed)
-        axis = np.random.default_rng(seed + 200).normal(size=3)
-        start = T.copy()  # turned 10 degrees about the object's centre: the centre where it is
-        start[:3, :3] = Rotation.from_rotvec(np.radians(10) * axis / np.linalg.norm(axis)).as_matrix() @ T[:3, :3]
-        start[:3, 3] += (T[:3, :3] - start[:3, :3]) @ centre
-        image = _photo(vertices, faces, T, seed)
-        result = refine_rgb(image, K, start, vertices, faces, RgbRefineParams(turn_only=True))
-        assert np.allclose(result.T[:3, :3] @ centre + result.T[:3, 3], start[:3, :3] @ centre + start[:3, 3],
-                           atol=1e-9)
-        before.append(Rotation.from_matrix(start[:3, :3] @ T[:3, :3].T).magnitude())
-        after.append(Rotation.from_matrix(result.T[:3, :3] @ T[:3, :3].T).magnitude())
-    # measured: 10 degrees before, 0.1-2.1 after
-    assert all(a < 0.4 * b for a, b in zip(after, before)), np.degrees(after)
+        cover = mesh_coverage(vertices, faces, K, T, 640, 480)[..., None]
+        image = np.round(cover * [190, 60, 50] + (1 - cover) * [60, 120, 100]).astype(np.uint8)
+        result = refine_rgb(image, K, T, vertices, faces)
+        ratios.append(np.linalg.norm(result.T[:3, 3]) / np.linalg.norm(T[:3, 3]))
+    assert abs(np.median(ratios) - 1) < 0.005 and max(abs(np.array(ratios) - 1)) < 0.008, ratios
