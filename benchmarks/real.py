@@ -2,7 +2,7 @@
 dataset's real photos (DOPE alone).
 
 Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 2400] [--epochs 20]
-       [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] [--refine-rgb]
+       [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] [--no-refine-rgb]
        [--zoom-epochs 8 | --no-zoom] [--generate key=value ...] [--train key=value ...] [--zoom-train key=value ...]
        --out OUT
 
@@ -36,16 +36,18 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    the detection score (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image and
    keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split with it
    (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
-   and the gallery of the worst images); with ``--refine-rgb`` the same again with DOPE's poses refined against
-   the images (``pegasus eval --refine-rgb``: the model's silhouette fitted to the photo's colour edges, scored by
-   belief x outline support; with the zoom network only turned, its centre and distance kept; RGB alone still; 2-6
-   more minutes per object on 2 CPU cores) in ``OUT/eval_rgb``,
-   ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``.
+   and the gallery of the worst images); then the same again with those poses refined against the images
+   (``pegasus eval --refine-rgb``: the dataset's model's silhouette fitted to the image's colour edges, scored by
+   belief x outline support, its own detection score set the same way; RGB alone still, no depth; about 4 more
+   minutes per object on 2 CPU cores; ``--no-refine-rgb``: not) in ``OUT/eval_rgb``, ``OUT/eval_synthetic_rgb``
+   and ``OUT/eval_photo_backed_rgb``.
 
 Writes ``OUT/real.json`` (with each step's seconds and the minutes per object: its training and evaluation, and
-its share of the library and the data), prints one line per object, with ``--refine-rgb`` one line ``real + RGB
-refinement: mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects``, and ends with one
-line: ``real: mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects`` (DOPE alone).
+its share of the library and the data), prints one line per object, one line ``real, without the RGB refinement:
+mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects`` (DOPE and its zoom), and ends with
+one line: ``real: mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects``: the estimates
+from the RGB images alone (DOPE, its zoom and the refinement against the image; with ``--no-refine-rgb`` without the
+refinement).
 """
 
 from __future__ import annotations
@@ -231,18 +233,31 @@ def figures(report: dict) -> dict:
 
 
 def scored(model: DopeModel, held_out: tuple[Path, Path], root: Path, split: str, max_images: int | None,
-           out: tuple[Path, Path, Path], refine_rgb: bool) -> tuple[dict, dict, dict]:
+           out: dict[str, tuple[Path, Path, Path]], refine_rgb: bool) -> dict[str, tuple[dict, dict, dict]]:
     """Figures (``figures``) on the synthetic held-out set, on its photo-backed copy and on the real split, whose
     detection score is the higher of the two the held-out sets calibrate (``score_threshold``: each holds
-    negatives the other lacks, the rendered distractors and unseen photos); the reports written to ``out``
-    (held-out, photo-backed, real folders: ``write_eval_report``). With ``refine_rgb`` of the poses refined against
-    the images."""
-    reports = [evaluate(model, where, "train_pbr", refine_rgb=refine_rgb) for where in held_out]
-    min_score = max(score_threshold(r, HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND) for r in reports)
-    reports.append(evaluate(model, root, split, max_images=max_images, min_score=min_score, refine_rgb=refine_rgb))
-    for report, where in zip(reports, out):
-        write_eval_report(report, where)
-    return tuple(figures(r) for r in reports)
+    negatives the other lacks, the rendered distractors and unseen photos); per pipeline: ``""`` the poses of DOPE
+    and its zoom, with ``refine_rgb`` also ``"_rgb"`` those refined against the images (one pass gives both, each
+    with its own detection score); the reports written to ``out[pipeline]`` (held-out, photo-backed, real folders:
+    ``write_eval_report``)."""
+    def pipelines(report: dict) -> dict[str, dict]:
+        return {"": report.pop("unrefined"), "_rgb": report} if refine_rgb else {"": report}
+
+    both = 0.1 if refine_rgb else None  # the held-out sets' estimates, all of them, before and after the refinement
+    held = [pipelines(evaluate(model, where, "train_pbr", refine_rgb=refine_rgb, unrefined_min_score=both))
+            for where in held_out]
+    min_score = {how: max(score_threshold(h[how], HELD_OUT_FALSE_POSITIVES, HELD_OUT_KEEP_FOUND) for h in held)
+                 for how in held[0]}
+    final = "_rgb" if refine_rgb else ""
+    real = pipelines(evaluate(model, root, split, max_images=max_images, min_score=min_score[final],
+                              refine_rgb=refine_rgb, unrefined_min_score=min_score[""] if refine_rgb else None))
+    figures_of = {}
+    for how in held[0]:
+        reports = (held[0][how], held[1][how], real[how])
+        for report, where in zip(reports, out[how]):
+            write_eval_report(report, where)
+        figures_of[how] = tuple(figures(r) for r in reports)
+    return figures_of
 
 
 def describe(name: str, figures: dict) -> str:
@@ -286,8 +301,8 @@ def main() -> int:
                         help="the zoom network's epochs")
     parser.add_argument("--no-zoom", dest="zoom", action="store_false",
                         help="no zoom network: DOPE's poses as PnP and the distance head place them")
-    parser.add_argument("--refine-rgb", action="store_true",
-                        help="also score the poses refined against the images (pegasus eval --refine-rgb)")
+    parser.add_argument("--no-refine-rgb", dest="refine_rgb", action="store_false",
+                        help="score the poses as DOPE and its zoom place them, not refined against the images")
     parser.add_argument("--generate", nargs="*", default=[], help="generate overrides (key=value) of the data")
     parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields (key=value) on the recipe's")
     parser.add_argument("--zoom-train", nargs="*", default=[],
@@ -347,7 +362,7 @@ def main() -> int:
     backed = held_out_photos(out / "held_out_photos", held_out, options.get("background_photos"), args.seed)
     times["generate"] = time.monotonic() - t0
 
-    hows = ("", "_rgb") if args.refine_rgb else ("",)  # DOPE alone, and refined against the images
+    hows = ("", "_rgb") if args.refine_rgb else ("",)  # DOPE and its zoom, and refined against the images
     rows = {}
     for i in ids:
         t0 = time.monotonic()
@@ -367,10 +382,11 @@ def main() -> int:
         t0 = time.monotonic()
         model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto", zoom=zoom)
         rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
-        for how in hows:
-            where = tuple(out / f"eval{kind}{how}" / f"obj_{i:06d}" for kind in ("_synthetic", "_photo_backed", ""))
-            rows[i][f"synthetic{how}"], rows[i][f"photo_backed{how}"], rows[i][f"real{how}"] = scored(
-                model, (held_out, backed), root, args.split, args.max_images, where, how == "_rgb")
+        where = {how: tuple(out / f"eval{kind}{how}" / f"obj_{i:06d}" for kind in ("_synthetic", "_photo_backed", ""))
+                 for how in hows}
+        for how, figs in scored(model, (held_out, backed), root, args.split, args.max_images, where,
+                                args.refine_rgb).items():
+            rows[i][f"synthetic{how}"], rows[i][f"photo_backed{how}"], rows[i][f"real{how}"] = figs
         times[f"evaluate obj {i}"] = time.monotonic() - t0
         shared = (times["library"] + times["generate"]) / len(ids)
         rows[i]["minutes"] = round((shared + sum(times[f"{step} obj {i}"] for step in ("train", "zoom", "evaluate")))
@@ -385,8 +401,9 @@ def main() -> int:
     means = {key: {k: float(np.mean([rows[i][key][k] for i in ids]))
                    for k in ("recall_0_1d", "auc", "false_positives_per_image")}
              for key in (f"real{how}" for how in hows)}
-    if all(rows[i]["real"]["top_n"] for i in ids):
-        means["top_n"] = {k: float(np.mean([rows[i]["real"]["top_n"][k] for i in ids]))
+    final = "real_rgb" if args.refine_rgb else "real"  # the summary line's estimates
+    if all(rows[i][final]["top_n"] for i in ids):
+        means["top_n"] = {k: float(np.mean([rows[i][final]["top_n"][k] for i in ids]))
                           for k in ("recall_0_1d", "auc", "off_target_per_image")}
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
@@ -395,15 +412,15 @@ def main() -> int:
            "distance_m": list(args.distance),
            "variant": args.variant, "clutter": clutter, "generate": args.generate, "train": args.train,
            "zoom_train": args.zoom_train,
-           "objects": {str(i): rows[i] for i in ids}, "mean": means["real"],
-           "mean_rgb_refined": means.get("real_rgb"), "mean_top_n": means.get("top_n"), "seconds": times,
+           "rgb_refined": args.refine_rgb, "objects": {str(i): rows[i] for i in ids}, "mean": means[final],
+           "mean_unrefined": means["real"], "mean_top_n": means.get("top_n"), "seconds": times,
            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}"}
     (out / "real.json").write_text(json.dumps(doc, indent=1))
-    if "real_rgb" in means:
-        print(summary_line("real + RGB refinement", means["real_rgb"], len(ids)))
+    if args.refine_rgb:
+        print(summary_line("real, without the RGB refinement", means["real"], len(ids)))
     if "top_n" in means:  # the split names its targets: the counts of instances a method is told under BOP's rule
         print(summary_line("real, BOP's top-n rule", means["top_n"], len(ids), "off_target_per_image"))
-    print(summary_line("real", means["real"], len(ids)))
+    print(summary_line("real", means[final], len(ids)))
     return 0
 
 

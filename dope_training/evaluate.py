@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -213,15 +213,31 @@ def describe_found(breakdown: dict) -> str:
                    f"rotation {alone['rotation']:.0%}")
 
 
+@dataclass
+class _Tally:
+    """One set of estimates over the evaluated images: the counted instances' matches, false positives, BOP's
+    top-n figures, the per-image record of the gallery and the BOP19 result rows."""
+
+    matches: list = field(default_factory=list)
+    false_positives: int = 0
+    top_errors: list = field(default_factory=list)
+    off_target: int = 0
+    frames: list = field(default_factory=list)
+    results: list = field(default_factory=list)
+
+
 def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibility: float = 0.1,
              max_images: int | None = None, min_score: float = 0.1, refine: bool = False,
-             refine_rgb: bool = False) -> dict:
+             refine_rgb: bool = False, unrefined_min_score: float | None = None) -> dict:
     """The report (see the module docstring) as a dict; ``max_images`` per scene. With ``refine`` every
     estimate is also refined with the frame's depth image (``DopeModel.estimate``) and the report gains
     ``refined``: the same figures for the refined poses, where an estimate the refinement rejects counts
     as a miss (a robot would not act on it); with ``refine_rgb`` the report is that of the poses refined against
-    the image (see the module docstring). ``frames`` lists per image its misses, false positives and instances
-    failing 0.1 d, for the gallery of the worst (``write_eval_report``)."""
+    the image (see the module docstring), and with ``unrefined_min_score`` too it gains ``unrefined``: the report of
+    the same pass's poses before that refinement (DOPE's, and its zoom's), those scoring above
+    ``unrefined_min_score`` (the detection score alone); each image's time there is that of both. ``frames`` lists
+    per image its misses, false positives and instances failing 0.1 d, for the gallery of the worst
+    (``write_eval_report``)."""
     root = Path(root)
     if not (root / split).is_dir():
         raise PegasusError(f"{root}: no {split}/ folder (choose --split)")
@@ -244,8 +260,70 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
     if refine_rgb:
         model_mesh = read_model(root, obj.obj_id)
         mesh = decimated(model_mesh.vertices, model_mesh.faces)
-    matches, refined_errors, false_positives, rejected, results, frames = [], [], 0, 0, [], []
-    targets, top_errors, off_target = read_targets_bop19(root, split), [], 0  # BOP's top-n rule
+    both = refine_rgb and unrefined_min_score is not None
+    targets = read_targets_bop19(root, split)  # BOP's top-n rule
+    tally, unrefined = _Tally(), _Tally()
+    refined_errors, rejected = [], 0
+
+    def add(t: _Tally, frame, truths: list, ignored: list, estimates: list, seconds: float) -> None:
+        """Match one image's estimates (ObjectPose, best first) to its counted ``truths`` into ``t``."""
+        for e in estimates:
+            T = e.refined if refine else e.T
+            if T is not None:
+                t.results.append(result_row(int(frame.scene.name), frame.im_id, obj.obj_id, e.score, T, seconds))
+        solved = [e for e in estimates if e.T is not None]  # DOPE + PnP alone
+        pairs, extra = match_instances(points, [i.T for i in truths], [e.T for e in solved], frame.K, ignored)
+        t.false_positives += extra
+        count = targets.get((int(frame.scene.name), frame.im_id, obj.obj_id), 0) if targets is not None else 0
+        if count:
+            top_pairs, top_extra = match_top_n(points, [i.T for i in truths], [(e.score, e.T) for e in solved],
+                                               count, frame.K, ignored)
+            t.off_target += top_extra
+            t.top_errors += [(add_m, adds_m) for _, _, add_m, adds_m in top_pairs]
+        metric_errors = []
+        for i, j, add_m, adds_m in pairs:
+            est = solved[j] if j is not None else None
+            t.matches.append(Match(frame.scene.name, frame.im_id, truths[i].index, add_m, adds_m,
+                                   est.score if est else None, est.T if est else None, truths[i].T))
+            metric_errors.append(adds_m if symmetric else add_m)
+        t.frames.append({"scene": frame.scene.name, "im_id": frame.im_id, "image": str(frame.image),
+                         "K": frame.K.tolist(), "false_positives": extra,
+                         "misses": sum(j is None for _, j, _, _ in pairs),
+                         "failed_0_1d": sum(e >= 0.1 * diameter for e in metric_errors),
+                         "truths": [i.T.tolist() for i in truths],
+                         "estimates": [{"T": e.T.tolist(), "score": float(e.score)} for e in solved]})
+
+    def report_of(t: _Tally, rgb_refined_poses: bool, score: float) -> dict:
+        """The report's figures of one tally (``score``: its detection score)."""
+        add_m = np.array([m.add_m for m in t.matches])
+        adds_m = np.array([m.adds_m for m in t.matches])
+        report = {"model": str(model.path), "backend": model.backend, "data": str(root), "split": split,
+                  "object": {"obj_id": obj.obj_id, "name": obj.name, "symmetric": symmetric,
+                             "diameter_m": diameter, "bbox_min": list(obj.bbox_min),
+                             "bbox_size": list(obj.bbox_size)},
+                  "metric": "ADD-S" if symmetric else "ADD", "images": len(t.frames), "instances": len(t.matches),
+                  "detected": int(np.isfinite(add_m).sum()), "misses": int((~np.isfinite(add_m)).sum()),
+                  "false_positives": t.false_positives,
+                  "false_positives_per_image": t.false_positives / len(t.frames) if t.frames else 0.0,
+                  "min_visibility": min_visibility, "min_score": score, "rgb_refined": rgb_refined_poses,
+                  "result": summary(adds_m if symmetric else add_m, diameter), "ADD": summary(add_m, diameter),
+                  "ADD-S": summary(adds_m, diameter),
+                  "found_poses": pose_breakdown(t.matches, symmetric, points, diameter),
+                  "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
+                                    "add_m": m.add_m if np.isfinite(m.add_m) else None,
+                                    "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
+                                   for m in t.matches],
+                  "frames": t.frames, "estimates": t.results}
+        if targets is not None:
+            t_add, t_adds = (np.array([e[k] for e in t.top_errors], float).reshape(-1) for k in (0, 1))
+            report["top_n"] = {"instances": len(t.top_errors), "misses": int((~np.isfinite(t_add)).sum()),
+                               "off_target": t.off_target,
+                               "off_target_per_image": t.off_target / len(t.frames) if t.frames else 0.0,
+                               "result": summary(t_adds if symmetric else t_add, diameter),
+                               "ADD": summary(t_add, diameter), "ADD-S": summary(t_adds, diameter)}
+        return report
+
+    lowest = min(min_score, unrefined_min_score) if both else min_score
     for frame in tqdm(list(bop_frames(root / split, max_images)), desc="eval", unit="img"):
         mine = [i for i in frame.instances if i.obj_id == obj.obj_id]
         seen = [i.visib_fract is None or i.visib_fract >= min_visibility for i in mine]
@@ -254,64 +332,19 @@ def evaluate(model: DopeModel, root: str | Path, split: str = "test", min_visibi
         image = images.read_rgb(frame.image)
         depth = frame.read_depth() if refine else None
         started = time.perf_counter()
-        estimates = model.estimate(image, frame.K, min_score=min_score, depth_m=depth, mesh=mesh)
-        if refine_rgb:
-            estimates = rgb_refined(estimates, min_score)
+        estimates = model.estimate(image, frame.K, min_score=lowest, depth_m=depth, mesh=mesh)
         seconds = time.perf_counter() - started
-        for e in estimates:
-            T = e.refined if refine else e.T
-            if T is not None:
-                results.append(result_row(int(frame.scene.name), frame.im_id, obj.obj_id, e.score, T, seconds))
-        solved = [e for e in estimates if e.T is not None]  # DOPE + PnP alone
-        pairs, extra = match_instances(points, [t.T for t in truths], [e.T for e in solved], frame.K, ignored)
-        false_positives += extra
-        count = targets.get((int(frame.scene.name), frame.im_id, obj.obj_id), 0) if targets is not None else 0
-        if count:
-            top_pairs, top_extra = match_top_n(points, [t.T for t in truths], [(e.score, e.T) for e in solved],
-                                               count, frame.K, ignored)
-            off_target += top_extra
-            top_errors += [(add, adds) for _, _, add, adds in top_pairs]
-        metric_errors = []
-        for i, j, add, adds in pairs:
-            est = solved[j] if j is not None else None
-            matches.append(Match(frame.scene.name, frame.im_id, truths[i].index, add, adds,
-                                 est.score if est else None, est.T if est else None, truths[i].T))
-            metric_errors.append(adds if symmetric else add)
-        frames.append({"scene": frame.scene.name, "im_id": frame.im_id, "image": str(frame.image),
-                       "K": frame.K.tolist(), "false_positives": extra,
-                       "misses": sum(j is None for _, j, _, _ in pairs),
-                       "failed_0_1d": sum(e >= 0.1 * diameter for e in metric_errors),
-                       "truths": [t.T.tolist() for t in truths],
-                       "estimates": [{"T": e.T.tolist(), "score": float(e.score)} for e in solved]})
+        if both:
+            add(unrefined, frame, truths, ignored, [e for e in estimates if e.score > unrefined_min_score], seconds)
+        add(tally, frame, truths, ignored, rgb_refined(estimates, min_score) if refine_rgb else estimates, seconds)
         if refine:
             refined = [e.refined for e in estimates if e.refined is not None]
             rejected += len(estimates) - len(refined)
-            refined_errors += [(add, adds) for _, _, add, adds in match_instances(
+            refined_errors += [(add_m, adds_m) for _, _, add_m, adds_m in match_instances(
                 points, [t.T for t in truths], refined, frame.K, ignored)[0]]
-    add = np.array([m.add_m for m in matches])
-    adds = np.array([m.adds_m for m in matches])
-    report = {"model": str(model.path), "backend": model.backend, "data": str(root), "split": split,
-              "object": {"obj_id": obj.obj_id, "name": obj.name, "symmetric": symmetric, "diameter_m": diameter,
-                         "bbox_min": list(obj.bbox_min), "bbox_size": list(obj.bbox_size)},
-              "metric": "ADD-S" if symmetric else "ADD", "images": len(frames), "instances": len(matches),
-              "detected": int(np.isfinite(add).sum()), "misses": int((~np.isfinite(add)).sum()),
-              "false_positives": false_positives,
-              "false_positives_per_image": false_positives / len(frames) if frames else 0.0,
-              "min_visibility": min_visibility, "min_score": min_score, "rgb_refined": refine_rgb,
-              "result": summary(adds if symmetric else add, diameter), "ADD": summary(add, diameter),
-              "ADD-S": summary(adds, diameter), "found_poses": pose_breakdown(matches, symmetric, points, diameter),
-              "per_instance": [{"scene": m.scene, "im_id": m.im_id, "gt_index": m.gt_index,
-                                "add_m": m.add_m if np.isfinite(m.add_m) else None,
-                                "adds_m": m.adds_m if np.isfinite(m.adds_m) else None, "score": m.score}
-                               for m in matches],
-              "frames": frames, "estimates": results}
-    if targets is not None:
-        t_add, t_adds = (np.array([e[k] for e in top_errors], float).reshape(-1) for k in (0, 1))
-        report["top_n"] = {"instances": len(top_errors), "misses": int((~np.isfinite(t_add)).sum()),
-                           "off_target": off_target,
-                           "off_target_per_image": off_target / len(frames) if frames else 0.0,
-                           "result": summary(t_adds if symmetric else t_add, diameter),
-                           "ADD": summary(t_add, diameter), "ADD-S": summary(t_adds, diameter)}
+    report = report_of(tally, refine_rgb, min_score)
+    if both:
+        report["unrefined"] = report_of(unrefined, False, unrefined_min_score)
     if refine:
         r_add, r_adds = (np.array([e[k] for e in refined_errors], float).reshape(-1) for k in (0, 1))
         report["refined"] = {"rejected": rejected, "misses": int((~np.isfinite(r_add)).sum()),

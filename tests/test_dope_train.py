@@ -80,6 +80,11 @@ def test_light_model_overfits_then_export_infer_and_eval_recover_the_poses(dope_
     assert rgb["ADD"]["pass_2cm"] == 1.0, rgb["ADD"]  # the image keeps right poses right
     scores = {(m["im_id"], m["gt_index"]): m["score"] for m in report["per_instance"]}
     assert all(0 < m["score"] <= scores[m["im_id"], m["gt_index"]] for m in rgb["per_instance"])  # belief x support
+    both = evaluate(onnx_model, dope_dataset, "train_pbr", min_visibility=0.9, refine_rgb=True, unrefined_min_score=0.1)
+    unrefined = both.pop("unrefined")  # one pass, the poses before and after the refinement: as two passes give them
+    untimed = [[{k: v for k, v in e.items() if k != "time"} for e in r["estimates"]] for r in (unrefined, report)]
+    assert unrefined["result"] == report["result"] and untimed[0] == untimed[1]
+    assert both["result"] == pytest.approx(rgb["result"]) and not unrefined["rgb_refined"] and both["rgb_refined"]
 
     scene = dope_dataset / "train_pbr" / "000000"
     cameras, found = json.loads((scene / "scene_camera.json").read_text()), 0
