@@ -38,9 +38,9 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
    and the gallery of the worst images); then the same again with those poses refined against the images
    (``pegasus eval --refine-rgb``: the dataset's model's silhouette fitted to the image's colour edges, scored by
-   belief x outline support, its own detection score set the same way; RGB alone still, no depth; about 4 more
-   minutes per object on 2 CPU cores; ``--no-refine-rgb``: not) in ``OUT/eval_rgb``, ``OUT/eval_synthetic_rgb``
-   and ``OUT/eval_photo_backed_rgb``.
+   belief x outline support, its own detection score set the same way; RGB alone still, no depth; one pass of
+   inference gives both: 2-3 minutes per object in all on 2 CPU cores; ``--no-refine-rgb``: not) in
+   ``OUT/eval_rgb``, ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``.
 
 Writes ``OUT/real.json`` (with each step's seconds and the minutes per object: its training and evaluation, and
 its share of the library and the data), prints one line per object, one line ``real, without the RGB refinement:
