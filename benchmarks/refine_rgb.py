@@ -1,0 +1,148 @@
+"""The refinement against the RGB image (``dope_training.refine_rgb``) started from the ground truth: how much of
+the truth it keeps, and how much of a start's error it takes away, on any BOP split with ground truth (real photos
+or generated frames) and without a network.
+
+Usage: python benchmarks/refine_rgb.py --data DIR [--split test] --objects ID[,ID...] [--min-visibility 0.5]
+       [--max-images N] [--distance-error 0.03] [--rotation-error-deg 10] [--aside-error-m 0.005] [--seed 0]
+       [--out FILE.json]
+
+Each instance of the objects seen at ``--min-visibility`` or more is refined from three starts, each with the
+dataset's model of the object (``models/``, as ``pegasus eval --refine-rgb`` refines):
+
+- ``truth``: the true pose itself (a refinement that reads the image exactly leaves it there);
+- ``distance``: the truth moved along its ray by the factor exp(e), e ~ N(0, ``--distance-error``);
+- ``estimate``: that, turned about a random axis by N(0, ``--rotation-error-deg``) per axis and moved aside by
+  N(0, ``--aside-error-m``) in the image plane: an error of the size a network's estimate has.
+
+Per object and start it prints the share within 0.1 d (ADD, or ADD-S for a symmetric object; 10 % of the
+diameter) before and after, the share whose distance alone is within 0.1 d, the refined distance's median ratio to
+the true one and its quartiles, and for ``distance`` the share of the start's distance error that is left (the
+slope of log(refined / true distance) on log(start / true distance): 0 when the refinement reads the distance from
+the image whatever the start, 1 when it keeps the start's). ``--out`` writes the figures as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from dope_training.evaluate import model_points
+from dope_training.refine_rgb import decimated, refine_rgb
+from pegasus_gen.errors import PegasusError
+from pegasus_gen.formats.bop import bop_frames, models_info, read_model
+from pegasus_gen.geometry.pose_error import add_error, adds_error
+from pegasus_gen.io import images
+from pegasus_gen.io.files import write_atomic
+
+STARTS = ("truth", "distance", "estimate")
+
+
+def start_poses(T: np.ndarray, rng: np.random.Generator, distance_error: float, rotation_error_deg: float,
+                aside_error_m: float) -> dict[str, np.ndarray]:
+    """The three starts (``STARTS``) [4, 4] for a true T_cam_obj [4, 4] (m)."""
+    moved = T.copy()
+    moved[:3, 3] *= np.exp(rng.normal(0.0, distance_error))
+    estimate = moved.copy()
+    turn = Rotation.from_rotvec(np.radians(rng.normal(0.0, rotation_error_deg, 3)))
+    estimate[:3, :3] = turn.as_matrix() @ T[:3, :3]
+    estimate[:2, 3] += rng.normal(0.0, aside_error_m, 2)
+    return {"truth": T.copy(), "distance": moved, "estimate": estimate}
+
+
+def figures(rows: list[dict], diameter_m: float) -> dict:
+    """The figures of one object and start from its rows (``error_m``, ``start_error_m``, ``ratio``,
+    ``start_ratio``, ``distance_m``)."""
+    error = np.array([r["error_m"] for r in rows])
+    start = np.array([r["start_error_m"] for r in rows])
+    ratio = np.array([r["ratio"] for r in rows])
+    start_ratio = np.array([r["start_ratio"] for r in rows])
+    distance = np.array([r["distance_m"] for r in rows])
+    out = {"instances": len(rows), "start_within_0_1d": float(np.mean(start < 0.1 * diameter_m)),
+           "within_0_1d": float(np.mean(error < 0.1 * diameter_m)),
+           "distance_within_0_1d": float(np.mean(np.abs(ratio - 1) * distance < 0.1 * diameter_m)),
+           "ratio_quartiles": np.percentile(ratio, [25, 50, 75]).round(4).tolist()}
+    if np.ptp(np.log(start_ratio)) > 1e-6:
+        out["distance_error_left"] = float(np.polyfit(np.log(start_ratio), np.log(ratio), 1)[0])
+    return out
+
+
+def describe(obj_id: int, start: str, f: dict) -> str:
+    q = f["ratio_quartiles"]
+    left = f", distance error left {f['distance_error_left']:.2f}" if "distance_error_left" in f else ""
+    return (f"obj {obj_id} from the {start}: {f['instances']} instances, within 0.1 d {f['start_within_0_1d']:.2f} -> "
+            f"{f['within_0_1d']:.2f}, distance alone {f['distance_within_0_1d']:.2f}, distance x{q[1]:.3f} "
+            f"(quartiles {q[0]:.3f}-{q[2]:.3f}){left}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", required=True, help="BOP dataset root with ground truth")
+    parser.add_argument("--split", default="test")
+    parser.add_argument("--objects", required=True, help="obj_ids, comma-separated")
+    parser.add_argument("--min-visibility", type=float, default=0.5)
+    parser.add_argument("--max-images", type=int, default=None, help="images per scene (default: all)")
+    parser.add_argument("--distance-error", type=float, default=0.03, help="standard deviation of log distance")
+    parser.add_argument("--rotation-error-deg", type=float, default=10.0, help="per axis, degrees")
+    parser.add_argument("--aside-error-m", type=float, default=0.005, help="per image axis, metres")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=None, help="JSON file for the figures")
+    args = parser.parse_args()
+    root = Path(args.data)
+    try:
+        ids = [int(i) for i in args.objects.split(",")]
+    except ValueError:
+        raise PegasusError(f"--objects {args.objects!r}: comma-separated obj_ids") from None
+    if not 0 <= args.min_visibility <= 1 or min(args.distance_error, args.rotation_error_deg,
+                                                 args.aside_error_m) < 0:
+        raise PegasusError("--min-visibility in 0..1 and the errors >= 0")
+    info = models_info(root)
+    if missing := [i for i in ids if i not in info or info[i].diameter is None]:
+        raise PegasusError(f"{root}: models_info.json has no diameter for obj_id {missing[0]}")
+    meshes = {}
+    for i in ids:
+        model = read_model(root, i)
+        meshes[i] = decimated(model.vertices, model.faces)
+    points = {i: model_points(root, i) for i in ids}
+    rng = np.random.default_rng(args.seed)
+    rows: dict[tuple[int, str], list[dict]] = {(i, s): [] for i in ids for s in STARTS}
+    for frame in tqdm(list(bop_frames(root / args.split, args.max_images)), desc="refine_rgb", unit="img"):
+        mine = [t for t in frame.instances if t.obj_id in ids and (t.visib_fract or 1.0) >= args.min_visibility]
+        image = images.read_rgb(frame.image) if mine else None
+        for truth in mine:
+            error = adds_error if info[truth.obj_id].symmetric else add_error
+            poses = start_poses(truth.T, rng, args.distance_error, args.rotation_error_deg, args.aside_error_m)
+            distance = float(np.linalg.norm(truth.T[:3, 3]))
+            for name, T in poses.items():
+                refined = refine_rgb(image, frame.K, T, *meshes[truth.obj_id]).T
+                rows[truth.obj_id, name].append({
+                    "error_m": error(points[truth.obj_id], refined, truth.T),
+                    "start_error_m": error(points[truth.obj_id], T, truth.T), "distance_m": distance,
+                    "ratio": float(np.linalg.norm(refined[:3, 3])) / distance,
+                    "start_ratio": float(np.linalg.norm(T[:3, 3])) / distance})
+    out = {"data": str(root), "split": args.split, "min_visibility": args.min_visibility,
+           "distance_error": args.distance_error, "rotation_error_deg": args.rotation_error_deg,
+           "aside_error_m": args.aside_error_m, "seed": args.seed, "objects": {}}
+    for i in ids:
+        if not rows[i, STARTS[0]]:
+            print(f"obj {i}: no instance seen at {args.min_visibility} or more")
+            continue
+        out["objects"][str(i)] = {s: figures(rows[i, s], info[i].diameter) for s in STARTS}
+        for s in STARTS:
+            print(describe(i, s, out["objects"][str(i)][s]))
+    if args.out is not None:
+        write_atomic(args.out, lambda f: f.write(json.dumps(out, indent=1).encode()))
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except PegasusError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
