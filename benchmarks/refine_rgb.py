@@ -112,7 +112,8 @@ def main() -> int:
     rng = np.random.default_rng(args.seed)
     rows: dict[tuple[int, str], list[dict]] = {(i, s): [] for i in ids for s in STARTS}
     for frame in tqdm(list(bop_frames(root / args.split, args.max_images)), desc="refine_rgb", unit="img"):
-        mine = [t for t in frame.instances if t.obj_id in ids and (t.visib_fract or 1.0) >= args.min_visibility]
+        mine = [t for t in frame.instances
+                if t.obj_id in ids and (t.visib_fract is None or t.visib_fract >= args.min_visibility)]
         image = images.read_rgb(frame.image) if mine else None
         for truth in mine:
             error = adds_error if info[truth.obj_id].symmetric else add_error

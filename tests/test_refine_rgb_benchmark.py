@@ -15,12 +15,13 @@ def test_on_rendered_frames_the_truth_stays_and_a_distance_error_is_mostly_taken
                              "--objects", "1", "--out", str(out)], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     figures = json.loads(out.read_text())["objects"]["1"]
-    print(json.dumps(figures, indent=1))
     assert len(result.stdout.strip().splitlines()) == 3
     truth, moved = figures["truth"], figures["distance"]
-    assert truth["instances"] == moved["instances"] >= 3
-    assert truth["within_0_1d"] == 1.0
-    assert moved["within_0_1d"] >= moved["start_within_0_1d"]
+    # measured: 8 instances; from the truth all within 0.1 d (distance x0.983: the classic render's outline lies
+    # about a pixel outside the mesh's); moved along the ray, 0.62 -> 1.00 within 0.1 d, 0.22 of the error left
+    assert truth["instances"] == moved["instances"] >= 4
+    assert truth["within_0_1d"] == 1.0 and 0.97 < truth["ratio_quartiles"][1] < 1.01
+    assert moved["within_0_1d"] > moved["start_within_0_1d"] and moved["distance_error_left"] < 0.5
 
 
 def test_bad_input_is_one_line_and_exit_code_2(tmp_path):
