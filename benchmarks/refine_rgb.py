@@ -4,7 +4,7 @@ or generated frames) and without a network.
 
 Usage: python benchmarks/refine_rgb.py --data DIR [--split test] --objects ID[,ID...] [--min-visibility 0.5]
        [--max-images N] [--distance-error 0.03] [--rotation-error-deg 10] [--aside-error-m 0.005] [--seed 0]
-       [--out FILE.json]
+       [--set key=value ...] [--out FILE.json]
 
 Each instance of the objects seen at ``--min-visibility`` or more is refined from three starts, each with the
 dataset's model of the object (``models/``, as ``pegasus eval --refine-rgb`` refines):
@@ -18,7 +18,9 @@ Per object and start it prints the share within 0.1 d (ADD, or ADD-S for a symme
 diameter) before and after, the share whose distance alone is within 0.1 d, the refined distance's median ratio to
 the true one and its quartiles, and for ``distance`` the share of the start's distance error that is left (the
 slope of log(refined / true distance) on log(start / true distance): 0 when the refinement reads the distance from
-the image whatever the start, 1 when it keeps the start's). ``--out`` writes the figures as JSON.
+the image whatever the start, 1 when it keeps the start's). ``--set`` changes ``RgbRefineParams`` fields (a variant
+of the refinement to measure, e.g. ``--set lines=240 half_length_px=[24,12,6]``); ``--out`` writes the figures as
+JSON.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +36,8 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from dope_training.evaluate import model_points
-from dope_training.refine_rgb import decimated, refine_rgb
+from dope_training.refine_rgb import RgbRefineParams, decimated, refine_rgb
+from dope_training.train_config import parse_options
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, models_info, read_model
 from pegasus_gen.geometry.pose_error import add_error, adds_error
@@ -53,6 +57,15 @@ def start_poses(T: np.ndarray, rng: np.random.Generator, distance_error: float, 
     estimate[:3, :3] = turn.as_matrix() @ T[:3, :3]
     estimate[:2, 3] += rng.normal(0.0, aside_error_m, 2)
     return {"truth": T.copy(), "distance": moved, "estimate": estimate}
+
+
+def refine_params(options: dict) -> RgbRefineParams:
+    """RgbRefineParams with ``options`` ({field: value}; lists become tuples) on its defaults; a PegasusError naming
+    an unknown field."""
+    known = {f.name for f in fields(RgbRefineParams)}
+    if unknown := sorted(set(options) - known):
+        raise PegasusError(f"--set {unknown[0]}: not an RgbRefineParams field ({', '.join(sorted(known))})")
+    return RgbRefineParams(**{k: tuple(v) if isinstance(v, list) else v for k, v in options.items()})
 
 
 def figures(rows: list[dict], diameter_m: float) -> dict:
@@ -91,6 +104,7 @@ def main() -> int:
     parser.add_argument("--rotation-error-deg", type=float, default=10.0, help="per axis, degrees")
     parser.add_argument("--aside-error-m", type=float, default=0.005, help="per image axis, metres")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", nargs="*", default=[], help="RgbRefineParams fields (key=value)")
     parser.add_argument("--out", type=Path, default=None, help="JSON file for the figures")
     args = parser.parse_args()
     root = Path(args.data)
@@ -101,6 +115,7 @@ def main() -> int:
     if not 0 <= args.min_visibility <= 1 or min(args.distance_error, args.rotation_error_deg,
                                                  args.aside_error_m) < 0:
         raise PegasusError("--min-visibility in 0..1 and the errors >= 0")
+    params = refine_params(parse_options(args.set))
     info = models_info(root)
     if missing := [i for i in ids if i not in info or info[i].diameter is None]:
         raise PegasusError(f"{root}: models_info.json has no diameter for obj_id {missing[0]}")
@@ -120,13 +135,13 @@ def main() -> int:
             poses = start_poses(truth.T, rng, args.distance_error, args.rotation_error_deg, args.aside_error_m)
             distance = float(np.linalg.norm(truth.T[:3, 3]))
             for name, T in poses.items():
-                refined = refine_rgb(image, frame.K, T, *meshes[truth.obj_id]).T
+                refined = refine_rgb(image, frame.K, T, *meshes[truth.obj_id], params).T
                 rows[truth.obj_id, name].append({
                     "error_m": error(points[truth.obj_id], refined, truth.T),
                     "start_error_m": error(points[truth.obj_id], T, truth.T), "distance_m": distance,
                     "ratio": float(np.linalg.norm(refined[:3, 3])) / distance,
-                    "start_ratio": float(np.linalg.norm(T[:3, 3])) / distance})
-    out = {"data": str(root), "split": args.split, "min_visibility": args.min_visibility,
+                    "start_ratio": float(np.linalg.norm(T[:3, 3])) / distance, "visib_fract": truth.visib_fract})
+    out = {"data": str(root), "split": args.split, "params": asdict(params), "min_visibility": args.min_visibility,
            "distance_error": args.distance_error, "rotation_error_deg": args.rotation_error_deg,
            "aside_error_m": args.aside_error_m, "seed": args.seed, "objects": {}}
     for i in ids:
@@ -137,6 +152,7 @@ def main() -> int:
         for s in STARTS:
             print(describe(i, s, out["objects"][str(i)][s]))
     if args.out is not None:
+        out["rows"] = {f"{i} {s}": r for (i, s), r in rows.items()}
         write_atomic(args.out, lambda f: f.write(json.dumps(out, indent=1).encode()))
     return 0
 
