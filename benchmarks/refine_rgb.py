@@ -86,6 +86,7 @@ def figures(rows: list[dict], diameter_m: float) -> dict:
 
 
 def describe(obj_id: int, start: str, f: dict) -> str:
+    """One object's ``figures`` from one start as the line the benchmark prints."""
     q = f["ratio_quartiles"]
     left = f", distance error left {f['distance_error_left']:.2f}" if "distance_error_left" in f else ""
     return (f"obj {obj_id} from the {start}: {f['instances']} instances, within 0.1 d {f['start_within_0_1d']:.2f} -> "
@@ -112,9 +113,9 @@ def main() -> int:
         ids = [int(i) for i in args.objects.split(",")]
     except ValueError:
         raise PegasusError(f"--objects {args.objects!r}: comma-separated obj_ids") from None
-    if not 0 <= args.min_visibility <= 1 or min(args.distance_error, args.rotation_error_deg,
-                                                 args.aside_error_m) < 0:
-        raise PegasusError("--min-visibility in 0..1 and the errors >= 0")
+    errors = (args.distance_error, args.rotation_error_deg, args.aside_error_m)
+    if not 0 <= args.min_visibility <= 1 or min(errors) < 0 or (args.max_images is not None and args.max_images < 1):
+        raise PegasusError("--min-visibility in 0..1, the errors >= 0 and --max-images >= 1")
     params = refine_params(parse_options(args.set))
     info = models_info(root)
     if missing := [i for i in ids if i not in info or info[i].diameter is None]:
