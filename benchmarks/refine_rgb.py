@@ -4,7 +4,7 @@ or generated frames) and without a network.
 
 Usage: python benchmarks/refine_rgb.py --data DIR [--split test] --objects ID[,ID...] [--min-visibility 0.5]
        [--max-images N] [--distance-error 0.03] [--rotation-error-deg 10] [--aside-error-m 0.005] [--seed 0]
-       [--set key=value ...] [--out FILE.json]
+       [--set key=value ...] [--zoom ID=PATH ...] [--out FILE.json]
 
 Each instance of the objects seen at ``--min-visibility`` or more is refined from three starts, each with the
 dataset's model of the object (``models/``, as ``pegasus eval --refine-rgb`` refines):
@@ -21,6 +21,11 @@ slope of log(refined / true distance) on log(start / true distance): 0 when the 
 the image whatever the start, 1 when it keeps the start's). ``--set`` changes ``RgbRefineParams`` fields (a variant
 of the refinement to measure, e.g. ``--set lines=240 half_length_px=[24,12,6]``); ``--out`` writes the figures as
 JSON.
+
+``--zoom ID=PATH`` (a zoom network of that object, ``pegasus train-zoom``) measures the zoomed second look from the
+same starts too: each start moved by the zoom network alone (``zoom``), and by the zoom network and then the
+refinement (``zoom+rgb``, as ``pegasus eval --zoom --refine-rgb`` takes an estimate), one line per start and way;
+without it only the refinement (``rgb``).
 """
 
 from __future__ import annotations
@@ -38,6 +43,8 @@ from tqdm import tqdm
 from dope_training.evaluate import model_points
 from dope_training.refine_rgb import RgbRefineParams, decimated, refine_rgb
 from dope_training.train_config import parse_options
+from dope_training.zoom import ZoomRefiner
+from dope_training.zoom import load as load_zoom
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, models_info, read_model
 from pegasus_gen.geometry.pose_error import add_error, adds_error
@@ -45,6 +52,7 @@ from pegasus_gen.io import images
 from pegasus_gen.io.files import write_atomic
 
 STARTS = ("truth", "distance", "estimate")
+WAYS = ("rgb", "zoom", "zoom+rgb")  # the refinement alone; the zoom network alone; the zoom, then the refinement
 
 
 def start_poses(T: np.ndarray, rng: np.random.Generator, distance_error: float, rotation_error_deg: float,
@@ -85,13 +93,28 @@ def figures(rows: list[dict], diameter_m: float) -> dict:
     return out
 
 
-def describe(obj_id: int, start: str, f: dict) -> str:
-    """One object's ``figures`` from one start as the line the benchmark prints."""
+def zooms(options: list[str], ids: list[int]) -> dict[int, ZoomRefiner]:
+    """The ``--zoom ID=PATH`` networks by obj_id; a PegasusError for a malformed one, an object not in ``ids`` or a
+    network of another object."""
+    out = {}
+    for option in options:
+        key, sep, path = option.partition("=")
+        if not sep or not key.strip().isdigit() or int(key) not in ids:
+            raise PegasusError(f"--zoom {option!r}: ID=PATH with ID one of --objects ({', '.join(map(str, ids))})")
+        out[int(key)] = load_zoom(path)
+        if out[int(key)].obj_id != int(key):
+            raise PegasusError(f"--zoom {option!r}: {path} is a zoom network of obj_id {out[int(key)].obj_id}")
+    return out
+
+
+def describe(obj_id: int, start: str, f: dict, way: str = "rgb") -> str:
+    """One object's ``figures`` from one start, taken one way (``WAYS``), as the line the benchmark prints."""
     q = f["ratio_quartiles"]
     left = f", distance error left {f['distance_error_left']:.2f}" if "distance_error_left" in f else ""
-    return (f"obj {obj_id} from the {start}: {f['instances']} instances, within 0.1 d {f['start_within_0_1d']:.2f} -> "
-            f"{f['within_0_1d']:.2f}, distance alone {f['distance_within_0_1d']:.2f}, distance x{q[1]:.3f} "
-            f"(quartiles {q[0]:.3f}-{q[2]:.3f}){left}")
+    how = "" if way == "rgb" else f" ({way})"
+    return (f"obj {obj_id} from the {start}{how}: {f['instances']} instances, within 0.1 d "
+            f"{f['start_within_0_1d']:.2f} -> {f['within_0_1d']:.2f}, distance alone {f['distance_within_0_1d']:.2f}, "
+            f"distance x{q[1]:.3f} (quartiles {q[0]:.3f}-{q[2]:.3f}){left}")
 
 
 def main() -> int:
@@ -106,6 +129,7 @@ def main() -> int:
     parser.add_argument("--aside-error-m", type=float, default=0.005, help="per image axis, metres")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--set", nargs="*", default=[], help="RgbRefineParams fields (key=value)")
+    parser.add_argument("--zoom", nargs="*", default=[], help="zoom networks (ID=PATH) to measure as well")
     parser.add_argument("--out", type=Path, default=None, help="JSON file for the figures")
     args = parser.parse_args()
     root = Path(args.data)
@@ -117,6 +141,7 @@ def main() -> int:
     if not 0 <= args.min_visibility <= 1 or min(errors) < 0 or (args.max_images is not None and args.max_images < 1):
         raise PegasusError("--min-visibility in 0..1, the errors >= 0 and --max-images >= 1")
     params = refine_params(parse_options(args.set))
+    zoom = zooms(args.zoom, ids)
     info = models_info(root)
     if missing := [i for i in ids if i not in info or info[i].diameter is None]:
         raise PegasusError(f"{root}: models_info.json has no diameter for obj_id {missing[0]}")
@@ -126,7 +151,8 @@ def main() -> int:
         meshes[i] = decimated(model.vertices, model.faces)
     points = {i: model_points(root, i) for i in ids}
     rng = np.random.default_rng(args.seed)
-    rows: dict[tuple[int, str], list[dict]] = {(i, s): [] for i in ids for s in STARTS}
+    ways = {i: WAYS if i in zoom else WAYS[:1] for i in ids}
+    rows: dict[tuple[int, str, str], list[dict]] = {(i, s, w): [] for i in ids for s in STARTS for w in ways[i]}
     for frame in tqdm(list(bop_frames(root / args.split, args.max_images)), desc="refine_rgb", unit="img"):
         mine = [t for t in frame.instances
                 if t.obj_id in ids and (t.visib_fract is None or t.visib_fract >= args.min_visibility)]
@@ -136,24 +162,30 @@ def main() -> int:
             poses = start_poses(truth.T, rng, args.distance_error, args.rotation_error_deg, args.aside_error_m)
             distance = float(np.linalg.norm(truth.T[:3, 3]))
             for name, T in poses.items():
-                refined = refine_rgb(image, frame.K, T, *meshes[truth.obj_id], params).T
-                rows[truth.obj_id, name].append({
-                    "error_m": error(points[truth.obj_id], refined, truth.T),
-                    "start_error_m": error(points[truth.obj_id], T, truth.T), "distance_m": distance,
-                    "ratio": float(np.linalg.norm(refined[:3, 3])) / distance,
-                    "start_ratio": float(np.linalg.norm(T[:3, 3])) / distance, "visib_fract": truth.visib_fract})
+                for way in ways[truth.obj_id]:
+                    moved = zoom[truth.obj_id].refine(image, frame.K, T) if way.startswith("zoom") else T
+                    refined = moved if way == "zoom" else refine_rgb(image, frame.K, moved, *meshes[truth.obj_id],
+                                                                     params).T
+                    rows[truth.obj_id, name, way].append({
+                        "error_m": error(points[truth.obj_id], refined, truth.T),
+                        "start_error_m": error(points[truth.obj_id], T, truth.T), "distance_m": distance,
+                        "ratio": float(np.linalg.norm(refined[:3, 3])) / distance,
+                        "start_ratio": float(np.linalg.norm(T[:3, 3])) / distance, "visib_fract": truth.visib_fract})
     out = {"data": str(root), "split": args.split, "params": asdict(params), "min_visibility": args.min_visibility,
            "distance_error": args.distance_error, "rotation_error_deg": args.rotation_error_deg,
-           "aside_error_m": args.aside_error_m, "seed": args.seed, "objects": {}}
+           "aside_error_m": args.aside_error_m, "seed": args.seed, "zoom": args.zoom, "objects": {}}
     for i in ids:
-        if not rows[i, STARTS[0]]:
+        if not rows[i, STARTS[0], WAYS[0]]:
             print(f"obj {i}: no instance seen at {args.min_visibility} or more")
             continue
-        out["objects"][str(i)] = {s: figures(rows[i, s], info[i].diameter) for s in STARTS}
-        for s in STARTS:
-            print(describe(i, s, out["objects"][str(i)][s]))
+        figs = {w: {s: figures(rows[i, s, w], info[i].diameter) for s in STARTS} for w in ways[i]}
+        # an object's figures: {start: ...} of the refinement, and with --zoom {"zoom": {start: ...}, "zoom+rgb": ...}
+        out["objects"][str(i)] = {**figs[WAYS[0]], **{w: figs[w] for w in ways[i][1:]}}
+        for w in ways[i]:
+            for s in STARTS:
+                print(describe(i, s, figs[w][s], w))
     if args.out is not None:
-        out["rows"] = {f"{i} {s}": r for (i, s), r in rows.items()}
+        out["rows"] = {f"{i} {s}" + ("" if w == WAYS[0] else f" {w}"): r for (i, s, w), r in rows.items()}
         write_atomic(args.out, lambda f: f.write(json.dumps(out, indent=1).encode()))
     return 0
 

@@ -113,6 +113,7 @@ def test_the_drawn_estimates_spread_as_configured():
     assert np.median(turns) == pytest.approx(0.674 * cfg.rotation_std_deg, rel=0.08)  # |N(0, std)|'s median
 
 
+
 def test_an_occluder_pastes_the_other_crop_moved_by_half_over_part_of_the_object_and_nothing_else():
     g = _ball(crop_px=96, object_px=66.0)
     rng = np.random.default_rng(0)
@@ -292,16 +293,6 @@ def test_the_colour_view_needs_a_model_with_vertex_colours(dope_dataset, tmp_pat
     trimesh.creation.box((0.1, 0.1, 0.1)).export(root / "models" / info.name)  # no colours
     with pytest.raises(PegasusError, match="no vertex colours"):
         object_geometry(root, obj_id, 64, 44.0, view="colour")
-
-
-@pytest.fixture(scope="module")
-def zoom_run(dope_dataset, tmp_path_factory):
-    """A zoom network for the noodle cups of ``dope_dataset`` (64 px crops), trained 12 epochs on 96 estimates
-    drawn around each of its instances."""
-    out = tmp_path_factory.mktemp("zoom") / "zoom.pt"
-    return train_zoom(ZoomConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(out), epochs=12,
-                                 per_instance=96, crop_px=64, object_px=44.0, rotation_std_deg=5.0, backgrounds=0.0,
-                                 device="cpu", seed=0))
 
 
 def test_a_zoom_network_brings_estimates_back_towards_the_truth(zoom_run, dope_dataset):
