@@ -162,10 +162,11 @@ def main() -> int:
             poses = start_poses(truth.T, rng, args.distance_error, args.rotation_error_deg, args.aside_error_m)
             distance = float(np.linalg.norm(truth.T[:3, 3]))
             for name, T in poses.items():
-                for way in ways[truth.obj_id]:
-                    moved = zoom[truth.obj_id].refine(image, frame.K, T) if way.startswith("zoom") else T
-                    refined = moved if way == "zoom" else refine_rgb(image, frame.K, moved, *meshes[truth.obj_id],
-                                                                     params).T
+                taken = {"rgb": refine_rgb(image, frame.K, T, *meshes[truth.obj_id], params).T}
+                if truth.obj_id in zoom:
+                    taken["zoom"] = zoom[truth.obj_id].refine(image, frame.K, T)
+                    taken["zoom+rgb"] = refine_rgb(image, frame.K, taken["zoom"], *meshes[truth.obj_id], params).T
+                for way, refined in taken.items():
                     rows[truth.obj_id, name, way].append({
                         "error_m": error(points[truth.obj_id], refined, truth.T),
                         "start_error_m": error(points[truth.obj_id], T, truth.T), "distance_m": distance,
