@@ -101,9 +101,10 @@ def zooms(options: list[str], ids: list[int]) -> dict[int, ZoomRefiner]:
         key, sep, path = option.partition("=")
         if not sep or not key.strip().isdigit() or int(key) not in ids:
             raise PegasusError(f"--zoom {option!r}: ID=PATH with ID one of --objects ({', '.join(map(str, ids))})")
-        out[int(key)] = load_zoom(path)
-        if out[int(key)].obj_id != int(key):
-            raise PegasusError(f"--zoom {option!r}: {path} is a zoom network of obj_id {out[int(key)].obj_id}")
+        obj_id = int(key)
+        out[obj_id] = load_zoom(path)
+        if out[obj_id].obj_id != obj_id:
+            raise PegasusError(f"--zoom {option!r}: {path} is a zoom network of obj_id {out[obj_id].obj_id}")
     return out
 
 

@@ -90,7 +90,6 @@ def overfit_dope(dope_dataset, tmp_path_factory):
                              checkpoint_every=500))
 
 
-
 @pytest.fixture(scope="session")
 def zoom_run(dope_dataset, tmp_path_factory):
     """A zoom network for the noodle cups of ``dope_dataset`` (64 px crops), trained 12 epochs on 96 estimates
@@ -102,6 +101,7 @@ def zoom_run(dope_dataset, tmp_path_factory):
     return train_zoom(ZoomConfig(data=[str(dope_dataset)], object="noodle_cup_red", out=str(out), epochs=12,
                                  per_instance=96, crop_px=64, object_px=44.0, rotation_std_deg=5.0, backgrounds=0.0,
                                  device="cpu", seed=0))
+
 
 # -- the rclpy stand-in and real rclpy, side by side -------------------------------------------------------------
 # rosidl's classes check their fields on assignment only with this set (read when a message module is first

@@ -113,7 +113,6 @@ def test_the_drawn_estimates_spread_as_configured():
     assert np.median(turns) == pytest.approx(0.674 * cfg.rotation_std_deg, rel=0.08)  # |N(0, std)|'s median
 
 
-
 def test_an_occluder_pastes_the_other_crop_moved_by_half_over_part_of_the_object_and_nothing_else():
     g = _ball(crop_px=96, object_px=66.0)
     rng = np.random.default_rng(0)
