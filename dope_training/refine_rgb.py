@@ -232,16 +232,22 @@ def _steepest(crop: np.ndarray, points: np.ndarray, normals: np.ndarray, centre:
 
 
 def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-               params: RgbRefineParams | None = None) -> RgbRefinement:
+               params: RgbRefineParams | None = None, probability: np.ndarray | None = None) -> RgbRefinement:
     """The pose T_cam_obj [4, 4] (metres, OpenCV camera frame) of the object whose mesh is ``vertices`` [V, 3]
     (metres, model frame) and ``faces`` [F, 3], fitted to an RGB ``image`` [H, W, 3] uint8 seen with K [3, 3]
-    (see the module docstring; pass the mesh through ``decimated`` once per object for speed). The input pose
-    comes back (support 0) when the object does not project into the image in front of the camera."""
+    (see the module docstring; pass the mesh through ``decimated`` once per object for speed). With
+    ``probability`` [H, W] float32 (0..1: each pixel's probability of showing the object, from elsewhere: the
+    outline look, ``dope_training.outline``) the fit takes it instead of the colour histograms' and seeks the
+    edge's steepest change in it instead of in the colours. The input pose comes back (support 0) when the object
+    does not project into the image in front of the camera."""
     params = params or RgbRefineParams()
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise PegasusError(f"refine_rgb: the image must be [H, W, 3] uint8, not {image.dtype} {image.shape}")
     height, width = image.shape[:2]
+    if probability is not None and np.shape(probability) != (height, width):
+        raise PegasusError(f"refine_rgb: a probability map of {np.shape(probability)} for an image of "
+                           f"{(height, width)}")
     vertices = np.asarray(vertices, np.float64)
     centre = (vertices.min(0) + vertices.max(0)) / 2
     local = vertices - centre
@@ -260,7 +266,11 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
         crop = image[roi.y0:roi.y0 + roi.h, roi.x0:roi.x0 + roi.w]
         mask = mesh_silhouette(local, faces, roi.K, T, roi.w, roi.h)
         contour = _contour(mask, params.lines)
-        prob = _foreground_probability(crop, mask, params)
+        if probability is None:
+            prob = _foreground_probability(crop, mask, params)
+        else:  # its steepest change is sought in it, as in colours (0..255)
+            prob = np.asarray(probability[roi.y0:roi.y0 + roi.h, roi.x0:roi.x0 + roi.w], np.float32)
+            crop = 255 * prob[..., None]
         if contour is None or prob is None:
             break
         points, normals = contour

@@ -239,17 +239,21 @@ class ZoomRefiner:
         return T
 
 
-def save(path: Path, net: ZoomNet, g: ZoomGeometry, obj_id: int, name: str, config: dict) -> None:
-    """The zoom network's checkpoint (tensors and plain values only: read back with weights_only)."""
+def save(path: Path, net: nn.Module, g: ZoomGeometry, obj_id: int, name: str, config: dict) -> None:
+    """The zoom network's checkpoint (tensors and plain values only: read back with weights_only): a ZoomNet's (the
+    offsets look) or an OutlineNet's (``dope_training.outline``)."""
+    look = {"look": "offsets", "outputs": net.outputs, "view": net.view} if isinstance(net, ZoomNet) else {
+        "look": "outline"}
     torch.save({"format": ZOOM_FORMAT, "obj_id": obj_id, "name": name, "config": config,
                 "vertices": torch.from_numpy(g.vertices), "faces": torch.from_numpy(g.faces),
                 "centre": torch.from_numpy(g.centre), "diameter": g.diameter, "crop_px": g.crop_px,
-                "object_px": g.object_px, "outputs": net.outputs, "view": net.view, "model": net.state_dict(),
+                "object_px": g.object_px, **look, "model": net.state_dict(),
                 **({} if g.colours is None else {"colours": torch.from_numpy(g.colours)})}, path)
 
 
-def load(path: str | Path, device: str | torch.device = "cpu") -> ZoomRefiner:
-    """The ZoomRefiner saved at ``path``; a PegasusError when it is not a zoom checkpoint (nothing in it is run)."""
+def load(path: str | Path, device: str | torch.device = "cpu"):
+    """The ZoomRefiner saved at ``path`` (an OutlineRefiner for an outline look's: the same ``refine``); a
+    PegasusError when it is not a zoom checkpoint (nothing in it is run)."""
     path, device = Path(path), torch.device(device)
     try:
         doc = torch.load(path, map_location="cpu", weights_only=True)
@@ -262,6 +266,13 @@ def load(path: str | Path, device: str | torch.device = "cpu") -> ZoomRefiner:
     g = ZoomGeometry(doc["vertices"].numpy().astype(np.float64), doc["faces"].numpy().astype(np.int64),
                      doc["centre"].numpy().astype(np.float64), float(doc["diameter"]), int(doc["crop_px"]),
                      float(doc["object_px"]))
+    if doc.get("look") == "outline":
+        from dope_training.outline import OutlineNet, OutlineRefiner  # outline builds on this module
+
+        net = OutlineNet(pretrained=False)
+        net.load_state_dict(doc["model"])
+        net = net.to(device, memory_format=torch.channels_last)
+        return OutlineRefiner(net, g, int(doc["obj_id"]), str(doc["name"]), device)
     if "colours" in doc or doc.get("view") in SURFACE_VIEWS:
         g = surfaced(g, doc["colours"].numpy() if "colours" in doc else None)
     # checkpoints from before the rotation and the colour view: position, silhouette

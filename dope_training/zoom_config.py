@@ -36,6 +36,10 @@ class ZoomConfig(BaseModel):
         "silhouette", description="what is rendered at the estimate beside the crop: the model's silhouette, with "
         "colour also its vertex colours shaded as under a light at the camera, with normals also its surface normals "
         "in the camera frame")
+    look: Literal["offsets", "outline"] = Field(
+        "offsets", description="offsets: regress the centre's and the distance's offsets (with rotation the turn "
+        "too) from the crop and the view; outline: read each crop pixel's probability of showing the object and fit "
+        "the model's outline to it, moving the whole pose (no view, no rotation output)")
     min_visibility: float = Field(0.1, ge=0.0, le=1.0, description="skip instances seen less than this")
     backgrounds: float = Field(0.5, ge=0.0, le=1.0, description="share of the crops with a real photograph behind "
                                "the objects")

@@ -2,7 +2,8 @@
 
 Each visible instance of the object is seen from ``per_instance`` estimates drawn around its true pose (the box
 centre moved aside and along its ray, the rotation turned: the kind of error DOPE makes), and the network learns
-the offsets back to the truth (``zoom.offsets``: the position's, and with ``rotation`` the turn's too). The crops
+the offsets back to the truth (``zoom.offsets``: the position's, and with ``rotation`` the turn's too), or with the
+outline ``look`` where the object lies in the crop (``outline.outline_target``: a per-pixel cross-entropy). The crops
 are drawn once; every epoch redraws their augmentation: a real photograph behind the objects (BOP's visible masks),
 with ``occluders`` part of the object hidden (``occluded``), blur, colour jitter and hue as DOPE's recipe.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
@@ -28,6 +30,7 @@ from dope_training.backgrounds import (
 )
 from dope_training.data import Augment, jitter_colour, occluder_mask, resolve_objects
 from dope_training.model import torch_device
+from dope_training.outline import OutlineNet, crop_tensor, outline_target
 from dope_training.refine_rgb import decimated
 from dope_training.zoom import (
     OFFSET_STD,
@@ -44,7 +47,7 @@ from dope_training.zoom import (
 )
 from dope_training.zoom_config import ZoomConfig
 from pegasus_gen.errors import PegasusError
-from pegasus_gen.formats.bop import bop_frames, model_boxes, models_info, object_names, read_model
+from pegasus_gen.formats.bop import bop_frames, mask_name, model_boxes, models_info, object_names, read_model
 from pegasus_gen.io.images import read_rgb
 
 # centre x, y, log distance (what DOPE gets least right), the turn's rotation vector
@@ -106,12 +109,22 @@ def occluded(crop: np.ndarray, view: np.ndarray, other: np.ndarray, rng: np.rand
     return out
 
 
+def _visible_mask(frame, inst) -> np.ndarray:
+    """[H, W] bool: the instance's visible mask (``mask_visib``); a PegasusError when it is not on disk."""
+    path = frame.scene / "mask_visib" / mask_name(frame.im_id, inst.index)
+    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise PegasusError(f"{path}: no visible mask to teach the outline look from")
+    return mask > 0
+
+
 def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfig, rng: np.random.Generator) -> dict:
     """The drawn crops of every visible instance: crops [N, C, C, 3], the model's views at the estimates [N, C, C, V]
     (``zoom_input``), the objects' visible masks in the crop [N, C, C] (uint8 coverage x 255, for photo
-    backgrounds) and offsets [N, 6]."""
+    backgrounds), offsets [N, 6] and for the outline look its targets [N, C, C] (``outline_target`` x 255,
+    uint8)."""
     frames = [f for root in roots for f in bop_frames(root / cfg.split)]
-    out = {"crops": [], "views": [], "objects": [], "offsets": []}
+    out = {"crops": [], "views": [], "objects": [], "offsets": [], **({"targets": []} if cfg.look == "outline" else {})}
     for frame in tqdm(frames, desc="zoom crops", unit="img"):
         mine = [i for i in frame.instances if i.obj_id == obj_id
                 and (1.0 if i.visib_fract is None else i.visib_fract) >= cfg.min_visibility]
@@ -119,6 +132,7 @@ def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfi
             continue
         image, union = read_rgb(frame.image), masks_union(frame.visible_masks())
         for inst in mine:
+            visible = _visible_mask(frame, inst) if cfg.look == "outline" else None
             for _ in range(cfg.per_instance):
                 T = drawn_estimate(inst.T, frame.K, g, cfg, rng)
                 crop, view, w = zoom_input(image, T, frame.K, g, cfg.view)
@@ -127,6 +141,9 @@ def zoom_samples(roots: list[Path], obj_id: int, g: ZoomGeometry, cfg: ZoomConfi
                 out["views"].append(view)
                 out["objects"].append(objects.astype(np.uint8))
                 out["offsets"].append(offsets(inst.T, T, frame.K, g))
+                if visible is not None:
+                    target = outline_target(inst.T, visible, w.A, w.K, g)
+                    out["targets"].append(np.rint(255 * target).astype(np.uint8))
     if not out["crops"]:
         raise PegasusError(f"{', '.join(map(str, roots))}: no instance of obj_id {obj_id} seen at least "
                            f"{cfg.min_visibility:g} in {cfg.split}/")
@@ -144,6 +161,9 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     names = object_names(roots[0])
     obj_id = resolve_objects([cfg.object], model_boxes(roots[0]), names, str(roots[0]))[0]
     name = next((n for n, k in names.items() if k == obj_id), f"obj_{obj_id:06d}")
+    if cfg.look == "outline" and (cfg.rotation or cfg.view != "silhouette"):
+        raise PegasusError("the outline look fits the whole pose and reads the crop alone: rotation and view are "
+                           "the offsets look's")
     device = torch_device(cfg.device)
     g = object_geometry(roots[0], obj_id, cfg.crop_px, cfg.object_px, cfg.view)
     rng = np.random.default_rng(cfg.seed)
@@ -153,7 +173,8 @@ def train_zoom(cfg: ZoomConfig) -> Path:
     aug = Augment(blur_px=cfg.blur_px, brightness=cfg.colour_jitter, contrast=cfg.colour_jitter,
                   saturation=cfg.colour_jitter, hue_deg=cfg.hue_deg)
     outputs = WITH_ROTATION if cfg.rotation else POSITION
-    net = ZoomNet(cfg.crop_px, outputs, view=cfg.view).to(device, memory_format=torch.channels_last)
+    net = OutlineNet() if cfg.look == "outline" else ZoomNet(cfg.crop_px, outputs, view=cfg.view)
+    net = net.to(device, memory_format=torch.channels_last)
     n = len(samples["crops"])
     batches = max(n // cfg.batch_size, 1)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
@@ -177,9 +198,14 @@ def train_zoom(cfg: ZoomConfig) -> Path:
                 if cfg.occluders > 0 and n > 1 and rng.uniform() < cfg.occluders:
                     crop = occluded(crop, samples["views"][i], samples["crops"][(i + rng.integers(1, n)) % n], rng)
                 crops.append(jitter_colour(crop, rng, aug))
-            x = zoom_tensor(np.stack(crops), samples["views"][idx]).to(device)
-            y = torch.from_numpy(samples["offsets"][idx, :outputs]).to(device) / scale
-            loss = (torch.nn.functional.smooth_l1_loss(net(x), y, reduction="none") * weights).mean()
+            if cfg.look == "outline":
+                y = torch.from_numpy(samples["targets"][idx]).to(device).float() / 255.0
+                loss = torch.nn.functional.binary_cross_entropy_with_logits(net(crop_tensor(np.stack(crops)).to(
+                    device)), y)
+            else:
+                x = zoom_tensor(np.stack(crops), samples["views"][idx]).to(device)
+                y = torch.from_numpy(samples["offsets"][idx, :outputs]).to(device) / scale
+                loss = (torch.nn.functional.smooth_l1_loss(net(x), y, reduction="none") * weights).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()

@@ -186,11 +186,11 @@ def add_commands(sub) -> None:
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("train-zoom", help="train the zoomed second look at each estimate (its centre and distance; "
-                       "with --rotation its rotation too) "
+                       "with --rotation its rotation too; with --look outline the object's outline, fitted) "
                        "for one object on BOP datasets")
     options.add_config_flags(p, ZoomConfig, (
         "data", "object", "out", "split", "epochs", "per_instance", "batch_size", "lr", "crop_px", "object_px",
-        "centre_std", "distance_std", "rotation_std_deg", "rotation", "view", "min_visibility", "backgrounds",
+        "centre_std", "distance_std", "rotation_std_deg", "rotation", "view", "look", "min_visibility", "backgrounds",
         "background_photos", "occluders", "blur_px", "colour_jitter", "hue_deg", "device", "seed"),
         data={"action": "append", "nargs": None, "help": "BOP dataset root (repeatable)"})
     p.set_defaults(func=cmd_train_zoom)

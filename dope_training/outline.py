@@ -1,0 +1,112 @@
+"""The outline look: a zoomed second look at an estimate that reads where the object is, pixel by pixel, and fits the
+model's outline to it.
+
+The offsets look (``dope_training.zoom``) regresses one offset from the whole crop: on the photos its distance
+spreads about twice as wide as on renders and reads some objects 1.5 % near (docs/TRAINING.md). The outline look
+crops the image around the estimate as the zoom does (``zoom_window``: the object's diameter ``object_px`` long at the
+estimated distance) and a small network (the ImageNet EfficientNet-Lite0 trunk and a decoder back to the crop's
+pixels through its stride-8, -4 and -2 features) reads each crop pixel's probability of showing the object: where
+the model at its true pose is seen, taught from the generated frames' poses and visible masks. The pose is then
+fitted to that map as the refinement against the image fits it to the colours (``refine_rgb`` with the map as its
+``probability``): every part of the outline counts, and a misread part is outvoted by the rest. ``LOOKS`` looks,
+each from the pose the last fit gave; the fit moves the whole pose.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import torch
+from torch import nn
+
+from dope_training.backbone import BLOCKS, FINE, LiteTrunk, load_pretrained
+from dope_training.refine_rgb import RgbRefineParams, refine_rgb
+from dope_training.zoom import IMAGENET_MEAN, IMAGENET_STD, ZoomGeometry, zoom_window
+from pegasus_gen.render.silhouette import mesh_coverage
+
+LOOKS = 2
+# the fit to the map: the map's edges are clean, so the search starts 12 px wide and ends 3 px wide
+FIT = RgbRefineParams(half_length_px=(12.0, 12.0, 6.0, 6.0, 6.0, 3.0, 3.0))
+TARGET_SUPERSAMPLE = 4  # the true silhouette's coverage, 4 x 4 samples per crop pixel
+
+
+def _conv(cin: int, cout: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, 1, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+class OutlineNet(nn.Module):
+    """crops [B, 3, C, C] (0..1; C a multiple of 32) -> the object's logits [B, C, C]: the EfficientNet-Lite0
+    trunk, then a decoder that joins its stride-16, -8, -4 and -2 features (upsampled, concatenated, 3 x 3
+    convolutions) and whose stride-2 logits are bilinearly upsampled to the crop."""
+
+    def __init__(self, pretrained: bool = True):
+        super().__init__()
+        self.trunk = LiteTrunk()
+        if pretrained:
+            load_pretrained(self.trunk)
+        s2, s4, s8, s16 = BLOCKS[0][4], BLOCKS[2][4], BLOCKS[FINE - 1][4], BLOCKS[-1][4]
+        self.up8, self.up4, self.up2 = _conv(s16 + s8, 64), _conv(64 + s4, 32), _conv(32 + s2, 16)
+        self.logits = nn.Conv2d(16, 1, 1)
+        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1))
+        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        blocks = self.trunk.blocks
+        s2 = blocks[0](self.trunk.stem((x - self.mean) / self.std))
+        s4 = blocks[1:3](s2)
+        s8 = blocks[3:FINE](s4)
+        s16 = blocks[FINE:](s8)
+        d = s16
+        for fine, up in ((s8, self.up8), (s4, self.up4), (s2, self.up2)):
+            d = nn.functional.interpolate(d, size=fine.shape[-2:], mode="bilinear", align_corners=False)
+            d = up(torch.cat([d, fine], dim=1))
+        return nn.functional.interpolate(self.logits(d), scale_factor=2, mode="bilinear", align_corners=False)[:, 0]
+
+
+def crop_tensor(crops: np.ndarray) -> torch.Tensor:
+    """crops [B, C, C, 3] uint8 -> the network's input [B, 3, C, C] float 0..1, laid out channels-last."""
+    return torch.from_numpy(np.ascontiguousarray(crops)).permute(0, 3, 1, 2).float() / 255.0
+
+
+def outline_target(T_true: np.ndarray, visible: np.ndarray, A: np.ndarray, K_crop: np.ndarray,
+                   g: ZoomGeometry) -> np.ndarray:
+    """[C, C] float32 0..1, what the network learns for one crop: the model's silhouette at its true pose T_true
+    [4, 4] (m) seen with the crop's K_crop [3, 3] (antialiased coverage, exact to the mesh), where the instance's
+    visible mask ``visible`` [H, W] (0/1, image px; grown by a pixel, since the mask's pixels are whole) warped
+    into the crop by A [2, 3] says it is seen: the model's own outline where it shows, the occluder's where it is
+    hidden."""
+    grown = cv2.dilate(visible.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+    seen = cv2.warpAffine(grown, A, (g.crop_px, g.crop_px), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    cover = mesh_coverage(g.vertices, g.faces, K_crop, T_true, g.crop_px, g.crop_px, supersample=TARGET_SUPERSAMPLE)
+    return np.minimum(cover, seen).astype(np.float32)
+
+
+class OutlineRefiner:
+    """A trained outline look for one object (``zoom.load``) and its geometry: ``refine`` as ``ZoomRefiner``'s."""
+
+    def __init__(self, net: OutlineNet, geometry: ZoomGeometry, obj_id: int, name: str, device: torch.device):
+        self.net, self.geometry, self.obj_id, self.name, self.device = net.eval(), geometry, obj_id, name, device
+
+    def probability(self, image: np.ndarray, K: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """[H, W] float32 0..1: the network's probability of the object in ``image`` [H, W, 3] uint8 RGB (K [3, 3])
+        over the crop around the estimate T [4, 4] (``zoom_window``), 0 beyond it."""
+        g = self.geometry
+        w = zoom_window(T, K, g)
+        crop = cv2.warpAffine(image, w.A, (g.crop_px, g.crop_px), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+        with torch.no_grad():
+            p = torch.sigmoid(self.net(crop_tensor(crop[None]).to(self.device))).cpu().numpy()[0]
+        height, width = image.shape[:2]
+        return cv2.warpAffine(p, w.A, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+
+    def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray, iterations: int = LOOKS) -> np.ndarray:
+        """T [4, 4] of an estimate in ``image`` [H, W, 3] uint8 RGB (an undistorted pinhole camera, K [3, 3]) fitted
+        ``iterations`` times to the network's map of the object. A pose with part of the model at or behind the
+        camera plane stays where it is."""
+        g = self.geometry
+        for _ in range(iterations):
+            if ((g.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
+                break
+            T = refine_rgb(image, K, T, g.vertices, g.faces, FIT, probability=self.probability(image, K, T)).T
+        return T
