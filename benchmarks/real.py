@@ -2,9 +2,9 @@
 dataset's real photos (DOPE alone).
 
 Usage: python benchmarks/real.py --real DIR [--split test] --objects ID[,ID...] [--frames 2400] [--epochs 20]
-       [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] [--no-refine-rgb]
-       [--zoom-epochs 8 | --no-zoom] [--generate key=value ...] [--train key=value ...] [--zoom-train key=value ...]
-       --out OUT
+       [--variant light|pretrained] [--distance 0.4 1.4] [--max-images N] [--device auto|cpu|cuda] [--refine-rgb]
+       [--zoom-epochs 8] [--no-zoom] [--no-outline] [--generate key=value ...] [--train key=value ...]
+       [--zoom-train key=value ...] --out OUT
 
 What it reads of DIR, and nothing else: ``models/obj_*.ply`` (mm, vertex colour: the objects, and the others as
 clutter) and ``models/models_info.json`` (diameter), the split's ``scene_camera.json`` (the real camera's K) and
@@ -26,28 +26,30 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    top; and a synthetic held-out set (another seed, ``--held-out-frames`` frames of two per scene). A finished
    dataset in OUT is reused.
 3. Per object a network (``--variant``) trained with the recipe and ``--train`` TrainConfig fields on top
-   (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed), and its zoom network
-   (``dope_training.zoom``: a second, zoomed-in look at each estimate that moves its centre and distance;
-   ``--zoom-epochs`` epochs and ``--zoom-train`` ZoomConfig fields on top, ``OUT/runs/obj_ID/zoom.pt``, reused when
-   there and trained with the same fields (``zoom.txt`` records them); ``--no-zoom``: none).
-4. Per object, with the zoom network: ``pegasus eval`` figures on the synthetic held-out set and on its
+   (``OUT/runs/obj_ID``; a finished run is reused, one cut short resumed), and its two zoom networks, second,
+   zoomed-in looks at each estimate applied in turn: the offsets look (``dope_training.zoom``: moves its centre and
+   distance; ``--zoom-epochs`` epochs and ``--zoom-train`` ZoomConfig fields on top, ``OUT/runs/obj_ID/zoom.pt``;
+   ``--no-zoom``: none), then the outline look (``dope_training.outline``: the object's outline read pixel by pixel
+   and the model's fitted to it; the same fields without rotation and view, ``OUT/runs/obj_ID/outline.pt``;
+   ``--no-outline``: none); each reused when there and trained with the same fields (``zoom.txt`` and
+   ``outline.txt`` record them).
+4. Per object, with the zoom networks: ``pegasus eval`` figures on the synthetic held-out set and on its
    photo-backed copy (``OUT/held_out_photos``: the same frames with the background photos that training keeps back,
    ``backgrounds.split_photos``, behind their labelled objects: real textures the network never saw), which set
    the detection score (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image and
    keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split with it
    (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
-   and the gallery of the worst images); then the same again with those poses refined against the images
-   (``pegasus eval --refine-rgb``: the dataset's model's silhouette fitted to the image's colour edges, scored by
-   belief x outline support, its own detection score set the same way; RGB alone still, no depth; one pass of
-   inference gives both: 2-3 minutes per object in all on 2 CPU cores; ``--no-refine-rgb``: not) in
-   ``OUT/eval_rgb``, ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``.
+   and the gallery of the worst images); with ``--refine-rgb`` then the same again with those poses refined against
+   the images (``pegasus eval --refine-rgb``: the dataset's model's silhouette fitted to the image's colour edges,
+   scored by belief x outline support, its own detection score set the same way; after the outline look it costs
+   on generated frames, docs/TRAINING.md; one pass of inference gives both) in ``OUT/eval_rgb``,
+   ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``. RGB alone, no depth.
 
 Writes ``OUT/real.json`` (with each step's seconds and the minutes per object: its training and evaluation, and
-its share of the library and the data), prints one line per object, one line ``real, without the RGB refinement:
-mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects`` (DOPE and its zoom), and ends with
-one line: ``real: mean ADD(-S) 0.1d recall R, AUC A, false positives per image F over N objects``: the estimates
-from the RGB images alone (DOPE, its zoom and the refinement against the image; with ``--no-refine-rgb`` without the
-refinement).
+its share of the library and the data), prints one line per object (with ``--refine-rgb`` one line ``real, without
+the RGB refinement: ...`` for DOPE and its zoom networks) and ends with one line: ``real: mean ADD(-S) 0.1d recall
+R, AUC A, false positives per image F over N objects``: the estimates from the RGB images alone (DOPE and its zoom
+networks; with ``--refine-rgb`` and the refinement against the image).
 """
 
 from __future__ import annotations
@@ -300,9 +302,11 @@ def main() -> int:
     parser.add_argument("--zoom-epochs", type=int, default=ZoomConfig.model_fields["epochs"].default,
                         help="the zoom network's epochs")
     parser.add_argument("--no-zoom", dest="zoom", action="store_false",
-                        help="no zoom network: DOPE's poses as PnP and the distance head place them")
-    parser.add_argument("--no-refine-rgb", dest="refine_rgb", action="store_false",
-                        help="score the poses as DOPE and its zoom place them, not refined against the images")
+                        help="no offsets look: DOPE's poses as PnP and the distance head place them")
+    parser.add_argument("--no-outline", dest="outline", action="store_false",
+                        help="no outline look after the offsets look")
+    parser.add_argument("--refine-rgb", action="store_true",
+                        help="also refine the poses against the images and score those in the summary line")
     parser.add_argument("--generate", nargs="*", default=[], help="generate overrides (key=value) of the data")
     parser.add_argument("--train", nargs="*", default=[], help="TrainConfig fields (key=value) on the recipe's")
     parser.add_argument("--zoom-train", nargs="*", default=[],
@@ -318,13 +322,16 @@ def main() -> int:
         raise PegasusError(f"--frames and --held-out-frames >= {FRAMES_PER_SCENE}, --epochs and --zoom-epochs >= 1 "
                            "and 0 < near < far <= 20 m expected")
     options, zoom_options = parse_options(args.train), parse_options(args.zoom_train)
-    if taken := [k for k in zoom_options if k in ("data", "object", "out", "epochs", "device", "seed")]:
+    if taken := [k for k in zoom_options if k in ("data", "object", "out", "epochs", "device", "seed", "look")]:
         raise PegasusError(f"--zoom-train {taken[0]}: set by real.py itself (its data and runs, --zoom-epochs, "
-                           "--device, --seed)")
+                           "--device, --seed, the two looks)")
     zoom_fields = {"data": [str(out / "data")], "epochs": args.zoom_epochs,
                    "background_photos": options.get("background_photos"), "device": args.device, "seed": args.seed,
                    **zoom_options}
-    config_from_args(ZoomConfig, argparse.Namespace(), object=str(ids[0]), **zoom_fields)  # before anything is written
+    # the outline look: the zoom's fields but its own look, without the offsets look's rotation and view
+    outline_fields = {**{k: v for k, v in zoom_fields.items() if k not in ("rotation", "view")}, "look": "outline"}
+    for fields in (zoom_fields, outline_fields):  # before anything is written
+        config_from_args(ZoomConfig, argparse.Namespace(), object=str(ids[0]), **fields)
     camera = real_camera(root, args.split)
     models_info = read_json(root / "models" / "models_info.json")
     infos = object_infos(root, models_info, ids)
@@ -375,12 +382,12 @@ def main() -> int:
                   resume=started)
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
-        zoom = run / "zoom.pt" if args.zoom else None
-        if zoom is not None:
-            trained_zoom(zoom, ZoomConfig(**zoom_fields, object=str(i), out=str(zoom)))
+        zooms = [run / "zoom.pt"] * args.zoom + [run / "outline.pt"] * args.outline
+        for zoom, fields in zip(zooms, [zoom_fields] * args.zoom + [outline_fields] * args.outline):
+            trained_zoom(zoom, ZoomConfig(**fields, object=str(i), out=str(zoom)))
         times[f"zoom obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
-        model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto", zoom=zoom)
+        model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto", zoom=zooms or None)
         rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
         where = {how: tuple(out / f"eval{kind}{how}" / f"obj_{i:06d}" for kind in ("_synthetic", "_photo_backed", ""))
                  for how in hows}
@@ -408,7 +415,8 @@ def main() -> int:
     doc = {"real": str(root), "split": args.split, "camera": {"K": camera.K.tolist(), "width": camera.width,
                                                              "height": camera.height},
            "training_camera": cam, "frames": args.frames, "held_out_frames": args.held_out_frames,
-           "epochs": args.epochs, "zoom_epochs": args.zoom_epochs if args.zoom else None,
+           "epochs": args.epochs, "zoom_epochs": args.zoom_epochs if args.zoom or args.outline else None,
+           "outline": args.outline,
            "distance_m": list(args.distance),
            "variant": args.variant, "clutter": clutter, "generate": args.generate, "train": args.train,
            "zoom_train": args.zoom_train,

@@ -40,7 +40,7 @@ from dope_training.pnp import solve_pose_consensus
 from dope_training.refine import Refinement, refine_multistart
 from dope_training.refine_rgb import RgbRefinement, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, off_axis_factor, read_map
-from dope_training.zoom import ZoomRefiner
+from dope_training.zoom import ZoomChain
 from dope_training.zoom import load as load_zoom
 from pegasus_gen.errors import PegasusError
 
@@ -167,10 +167,11 @@ class DopeModel:
     """A trained network ready for images. ``path``: an ``.onnx`` export (onnxruntime) or a ``.pt`` training
     checkpoint (torch); ``device``: cpu, cuda or auto; ``use_distance_head``: place each pose at its distance
     head's distance (networks that have one), else where PnP puts it; ``zoom``: a zoom network's checkpoint
-    (``pegasus train-zoom``) for the same object, which then moves every solved pose."""
+    (``pegasus train-zoom``) for the same object, or several applied in turn (e.g. the offsets look, then the
+    outline look), which then move every solved pose."""
 
     def __init__(self, path: str | Path, device: str = "cpu", use_distance_head: bool = True,
-                 zoom: str | Path | None = None):
+                 zoom: str | Path | list | None = None):
         path = Path(path)
         self.use_distance_head = use_distance_head
         if not path.is_file():
@@ -185,10 +186,13 @@ class DopeModel:
         obj = self.object  # surface samples for depth refinement, as arrays once (None: trained without a model)
         self.surface = None if obj.surface_points is None else (np.asarray(obj.surface_points, np.float64),
                                                                 np.asarray(obj.surface_normals, np.float64))
-        self.zoom: ZoomRefiner | None = None if zoom is None else load_zoom(zoom, self.device)
-        if self.zoom is not None and self.zoom.obj_id != obj.obj_id:
-            raise PegasusError(f"{zoom}: a zoom network for obj_id {self.zoom.obj_id} ({self.zoom.name}), the model "
-                               f"{path} finds obj_id {obj.obj_id} ({obj.name})")
+        zooms = [] if zoom is None else [zoom] if isinstance(zoom, (str, Path)) else list(zoom)
+        looks = [load_zoom(z, self.device) for z in zooms]
+        for z, look in zip(zooms, looks):
+            if look.obj_id != obj.obj_id:
+                raise PegasusError(f"{z}: a zoom network for obj_id {look.obj_id} ({look.name}), the model {path} "
+                                   f"finds obj_id {obj.obj_id} ({obj.name})")
+        self.zoom: ZoomChain | None = ZoomChain(looks) if looks else None
 
     def _init_onnx(self, path: Path, device: str) -> None:
         import onnxruntime

@@ -239,6 +239,20 @@ class ZoomRefiner:
         return T
 
 
+class ZoomChain:
+    """Zoom networks of one object (``ZoomRefiner``, ``outline.OutlineRefiner``) applied in turn: ``refine`` as
+    theirs."""
+
+    def __init__(self, looks: list):
+        self.looks = looks
+
+    def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """T [4, 4] moved by each look in turn (see ``ZoomRefiner.refine``)."""
+        for look in self.looks:
+            T = look.refine(image, K, T)
+        return T
+
+
 def save(path: Path, net: nn.Module, g: ZoomGeometry, obj_id: int, name: str, config: dict) -> None:
     """The zoom network's checkpoint (tensors and plain values only: read back with weights_only): a ZoomNet's (the
     offsets look) or an OutlineNet's (``dope_training.outline``)."""

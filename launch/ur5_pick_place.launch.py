@@ -8,7 +8,8 @@ hand-eye calibration; basket is the basket floor centre in the base frame. Both 
 write every number with a decimal point (1.0, not 1), as launch_ros reads them as List[float].
 Without a depth camera, refine_rgb:=MESH (the object's mesh in its model frame, mesh_scale:=0.001 for a model in
 mm) use_pose:=refined moves the robot to the poses refined against the image (see inference_node). zoom:=ZOOM.pt (a
-zoom network of the same object, pegasus train-zoom) moves every pose by its zoomed second look first.
+zoom network of the same object, pegasus train-zoom; several comma-separated, applied in turn) moves every pose by
+its zoomed second look first.
 """
 
 import typing
@@ -45,7 +46,8 @@ def generate_launch_description():
                               description="the object's mesh: refine the poses against the image (empty: off)"),
         DeclareLaunchArgument("mesh_scale", default_value="1.0", description="metres per mesh unit"),
         DeclareLaunchArgument("zoom", default_value="",
-                              description="a zoom network of the object: every pose moved by it (empty: off)"),
+                              description="zoom networks of the object, comma-separated: every pose moved by them "
+                              "in turn (empty: off)"),
         DeclareLaunchArgument("use_pose", default_value="raw", choices=["raw", "refined"]),
         Node(package="pegasus", executable="inference_node", parameters=[{
             "model": arg("model"), "device": "auto", "refine_rgb": ParameterValue(arg("refine_rgb"), value_type=str),

@@ -14,7 +14,8 @@ Parameters: ``model`` (ONNX export or checkpoint; empty: the path that arrives o
 trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``, ``refine`` (bool: with depth),
 ``refine_rgb`` (the object's mesh, PLY/OBJ in its model frame, ``mesh_scale`` metres per unit: refine against
 the image, ``refine_rgb.refine_rgb``; empty: off), ``zoom`` (a zoom network of the same object, ``pegasus
-train-zoom``: every pose moved by its zoomed second look first; empty: off), ``use_pose`` (raw | refined),
+train-zoom``, or several comma-separated, applied in turn: every pose moved by its zoomed second look first; empty:
+off), ``use_pose`` (raw | refined),
 ``max_images`` (> 0: end after that many images). Broadcasts on /tf each instance's pose (refined where accepted)
 as the transform from the image's frame to ``<object>_<k>`` (k by score).
 """
@@ -51,7 +52,7 @@ class InferenceNode(Node):
             raise PegasusError("inference_node: use_pose refined needs refine true (and a depth topic) or a "
                                "refine_rgb mesh")
         self.mesh = read_mesh(p["refine_rgb"], p["mesh_scale"]) if p["refine_rgb"] else None
-        self.zoom = p["zoom"] or None
+        self.zoom = [z.strip() for z in p["zoom"].split(",") if z.strip()] or None
         self.model = DopeModel(model, device=self.device, zoom=self.zoom) if model else None
         self.create_subscription(msgs.String, "model", self.on_model, latched())
         self.K = None

@@ -71,7 +71,7 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     script = str(ROOT / "benchmarks" / "real.py")
     result = subprocess.run([sys.executable, script, "--real", str(real), "--objects", "1", "--frames", "16",
                              "--held-out-frames", "8", "--epochs", "1", "--zoom-epochs", "1", "--device", "cpu",
-                             "--out", str(out)],
+                             "--refine-rgb", "--out", str(out)],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
     unrefined_line, top_line, last = result.stdout.strip().splitlines()[-3:]
@@ -98,6 +98,10 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     zoom = torch.load(out / "runs" / "obj_000001" / "zoom.pt", weights_only=True)
     assert zoom["obj_id"] == 1 and zoom["config"]["data"] == [str(out / "data")] and doc["zoom_epochs"] == 1
     assert json.loads((out / "runs" / "obj_000001" / "zoom.txt").read_text())["epochs"] == 1  # its fields recorded
+    # then the outline look, of the same data and epochs
+    outline = torch.load(out / "runs" / "obj_000001" / "outline.pt", weights_only=True)
+    assert outline["look"] == "outline" and outline["config"]["data"] == [str(out / "data")] and doc["outline"]
+    assert json.loads((out / "runs" / "obj_000001" / "outline.txt").read_text())["epochs"] == 1
     # the detection score holds the rule on the held-out frames as rendered and with unseen photos behind them
     held_out = [json.loads((out / f"eval_{kind}" / "obj_000001" / "eval.json").read_text())
                 for kind in ("synthetic", "photo_backed")]
@@ -148,7 +152,7 @@ def test_benchmark_runs_from_a_bop_test_split_to_its_summary_line(library, tmp_p
     assert nowhere.returncode == 2 and nowhere.stderr.strip().count("\n") == 0 and "nowhere" in nowhere.stderr
 
 
-@pytest.mark.parametrize("field", ["view=outline", "no_such_field=1", "rotation", "out=elsewhere.pt"])
+@pytest.mark.parametrize("field", ["view=outline", "no_such_field=1", "rotation", "out=elsewhere.pt", "look=outline"])
 def test_benchmark_refuses_bad_zoom_fields_in_one_line_before_writing_anything(tmp_path, field):
     out = tmp_path / "bench"
     bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "real.py"), "--real", str(tmp_path / "real"),

@@ -210,8 +210,10 @@ def add_commands(sub) -> None:
                        help="lowest detection score kept (geometric mean of the centroid's and corners' beliefs)")
         p.add_argument("--no-distance-head", dest="distance_head", action="store_false",
                        help="place the poses where PnP puts them even when the network has a distance head")
-        p.add_argument("--zoom", metavar="CHECKPOINT", help="a zoom network of the same object (pegasus train-zoom): "
-                       "a second, zoomed-in look at each estimate moves its centre and distance")
+        p.add_argument("--zoom", metavar="CHECKPOINT", action="append",
+                       help="a zoom network of the same object (pegasus train-zoom): a second, zoomed-in look at each "
+                       "estimate moves it; repeatable, applied in the order given (the offsets look, then the "
+                       "outline look)")
     p = sub.choices["infer"]
     p.add_argument("--image", required=True)
     p.add_argument("--K", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="camera intrinsics, px")
