@@ -1,7 +1,9 @@
 """The outline look (dope_training.outline): the fit to a probability map finds the pose the map was drawn from,
-its training target is the true silhouette where the object is seen, a network trained on a few frames brings
-estimates back and passes DOPE's poses through ``DopeModel``, its checkpoint loads as the zoom's, and options that
-are the offsets look's are refused."""
+its training target is the true silhouette where the object is seen, its checkpoint loads as the zoom's and moves
+DOPE's poses, alone or after the offsets look (``DopeModel``, ``pegasus infer --zoom A --zoom B``), a network
+trained on a few frames brings estimates back, and options that are the offsets look's are refused."""
+
+import json
 
 import numpy as np
 import pytest
@@ -81,7 +83,8 @@ def test_the_target_is_the_true_silhouette_where_the_instance_is_seen():
     assert target[:, middle + 2:].max() == 0 and whole[:, middle + 2:].max() > 0.9
 
 
-def test_an_outline_checkpoint_loads_as_the_zooms_and_moves_dope_poses(overfit_dope, dope_dataset, tmp_path):
+def test_an_outline_checkpoint_loads_as_the_zooms_and_moves_dope_poses(overfit_dope, zoom_run, dope_dataset,
+                                                                       tmp_path):
     checkpoint = _outline_run(dope_dataset, tmp_path / "outline.pt", 1, 2)  # one short epoch: the path, not the skill
     refiner = load(checkpoint)
     assert isinstance(refiner, OutlineRefiner) and refiner.geometry.crop_px == 64
@@ -94,6 +97,18 @@ def test_an_outline_checkpoint_loads_as_the_zooms_and_moves_dope_poses(overfit_d
     for a, b in zip(first, second):
         np.testing.assert_allclose(b.T, looked.zoom.refine(image, frame.K, a.T), atol=1e-9)
         assert np.isfinite(b.T).all()
+    # after the offsets look, in turn: in the library and on the command line (--zoom twice)
+    chained = DopeModel(overfit_dope / "last.pt", zoom=[zoom_run, checkpoint]).estimate(image, frame.K)
+    expected = [refiner.refine(image, frame.K, load(zoom_run).refine(image, frame.K, a.T)) for a in first]
+    for c, e in zip(chained, expected):
+        np.testing.assert_allclose(c.T, e, atol=1e-9)
+    assert main(["infer", "--model", str(overfit_dope / "last.pt"), "--image", str(frame.image), "--K",
+                 *map(str, frame.K[[0, 1, 0, 1], [0, 1, 2, 2]]), "--zoom", str(zoom_run), "--zoom", str(checkpoint),
+                 "--out", str(tmp_path / "infer")]) == 0
+    written = json.loads((tmp_path / "infer" / f"{frame.image.stem}_poses.json").read_text())["instances"]
+    assert len(written) == len(expected)
+    for w, e in zip(written, expected):
+        np.testing.assert_allclose(w["t_m"], e[:3, 3], atol=1e-6)
     probability = refiner.probability(image, frame.K, first[0].T)
     assert probability.shape == image.shape[:2] and 0 <= probability.min() and probability.max() <= 1
     # nothing beyond the crop around the estimate
