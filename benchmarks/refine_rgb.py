@@ -41,10 +41,9 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from dope_training.evaluate import model_points
+from dope_training.looks import load as load_zoom
 from dope_training.refine_rgb import RgbRefineParams, decimated, refine_rgb
 from dope_training.train_config import parse_options
-from dope_training.zoom import ZoomRefiner
-from dope_training.zoom import load as load_zoom
 from pegasus_gen.errors import PegasusError
 from pegasus_gen.formats.bop import bop_frames, models_info, read_model
 from pegasus_gen.geometry.pose_error import add_error, adds_error
@@ -93,7 +92,7 @@ def figures(rows: list[dict], diameter_m: float) -> dict:
     return out
 
 
-def zooms(options: list[str], ids: list[int]) -> dict[int, ZoomRefiner]:
+def zooms(options: list[str], ids: list[int]) -> dict:
     """The ``--zoom ID=PATH`` networks by obj_id; a PegasusError for a malformed one, an object not in ``ids`` or a
     network of another object."""
     out = {}

@@ -35,13 +35,13 @@ from dope_training.checkpoint import TargetObject, load_checkpoint, model_from_c
 from dope_training.data import input_scale
 from dope_training.decode import find_keypoints
 from dope_training.keypoints import object_keypoints
+from dope_training.looks import ZoomChain
+from dope_training.looks import load as load_zoom
 from dope_training.model import check_memory, config_from_dict, memory_estimate, torch_device
 from dope_training.pnp import solve_pose_consensus
 from dope_training.refine import Refinement, refine_multistart
 from dope_training.refine_rgb import RgbRefinement, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, off_axis_factor, read_map
-from dope_training.zoom import ZoomChain
-from dope_training.zoom import load as load_zoom
 from pegasus_gen.errors import PegasusError
 
 # a candidate peak supports a pose within this many network-input px of its reprojected corner (pnp's consensus)

@@ -82,7 +82,7 @@ def outline_target(T_true: np.ndarray, visible: np.ndarray, A: np.ndarray, K_cro
 
 
 class OutlineRefiner:
-    """A trained outline look for one object (``zoom.load``) and its geometry: ``refine`` as ``ZoomRefiner``'s."""
+    """A trained outline look for one object (``looks.load``) and its geometry: ``refine`` as ``ZoomRefiner``'s."""
 
     def __init__(self, net: OutlineNet, geometry: ZoomGeometry, obj_id: int, name: str, device: torch.device):
         self.net, self.geometry, self.obj_id, self.name, self.device = net.eval(), geometry, obj_id, name, device
@@ -110,3 +110,12 @@ class OutlineRefiner:
                 break
             T = refine_rgb(image, K, T, g.vertices, g.faces, FIT, probability=self.probability(image, K, T)).T
         return T
+
+
+def outline_refiner(doc: dict, g: ZoomGeometry, device: torch.device) -> OutlineRefiner:
+    """The OutlineRefiner of an outline look's checkpoint ``doc`` (``zoom.read_checkpoint``: its geometry ``g``) on
+    ``device``."""
+    net = OutlineNet(pretrained=False)
+    net.load_state_dict(doc["model"])
+    net = net.to(device, memory_format=torch.channels_last)  # as crop_tensor lays out its input
+    return OutlineRefiner(net, g, int(doc["obj_id"]), str(doc["name"]), device)

@@ -239,20 +239,6 @@ class ZoomRefiner:
         return T
 
 
-class ZoomChain:
-    """Zoom networks of one object (``ZoomRefiner``, ``outline.OutlineRefiner``) applied in turn: ``refine`` as
-    theirs."""
-
-    def __init__(self, looks: list):
-        self.looks = looks
-
-    def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray) -> np.ndarray:
-        """T [4, 4] moved by each look in turn (see ``ZoomRefiner.refine``)."""
-        for look in self.looks:
-            T = look.refine(image, K, T)
-        return T
-
-
 def save(path: Path, net: nn.Module, g: ZoomGeometry, obj_id: int, name: str, config: dict) -> None:
     """The zoom network's checkpoint (tensors and plain values only: read back with weights_only): a ZoomNet's (the
     offsets look) or an OutlineNet's (``dope_training.outline``)."""
@@ -265,10 +251,10 @@ def save(path: Path, net: nn.Module, g: ZoomGeometry, obj_id: int, name: str, co
                 **({} if g.colours is None else {"colours": torch.from_numpy(g.colours)})}, path)
 
 
-def load(path: str | Path, device: str | torch.device = "cpu"):
-    """The ZoomRefiner saved at ``path`` (an OutlineRefiner for an outline look's: the same ``refine``); a
+def read_checkpoint(path: str | Path) -> tuple[dict, ZoomGeometry]:
+    """The checkpoint at ``path`` of either look (``save``; read by ``looks.load``) and its object's geometry; a
     PegasusError when it is not a zoom checkpoint (nothing in it is run)."""
-    path, device = Path(path), torch.device(device)
+    path = Path(path)
     try:
         doc = torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
@@ -280,13 +266,12 @@ def load(path: str | Path, device: str | torch.device = "cpu"):
     g = ZoomGeometry(doc["vertices"].numpy().astype(np.float64), doc["faces"].numpy().astype(np.int64),
                      doc["centre"].numpy().astype(np.float64), float(doc["diameter"]), int(doc["crop_px"]),
                      float(doc["object_px"]))
-    if doc.get("look") == "outline":
-        from dope_training.outline import OutlineNet, OutlineRefiner  # outline builds on this module
+    return doc, g
 
-        net = OutlineNet(pretrained=False)
-        net.load_state_dict(doc["model"])
-        net = net.to(device, memory_format=torch.channels_last)
-        return OutlineRefiner(net, g, int(doc["obj_id"]), str(doc["name"]), device)
+
+def offsets_refiner(doc: dict, g: ZoomGeometry, path: str | Path, device: torch.device) -> ZoomRefiner:
+    """The ZoomRefiner of an offsets look's checkpoint ``doc`` (``read_checkpoint``: its geometry ``g``, read from
+    ``path``) on ``device``."""
     if "colours" in doc or doc.get("view") in SURFACE_VIEWS:
         g = surfaced(g, doc["colours"].numpy() if "colours" in doc else None)
     # checkpoints from before the rotation and the colour view: position, silhouette

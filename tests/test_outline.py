@@ -11,9 +11,10 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from dope_training.infer import DopeModel
+from dope_training.looks import load
 from dope_training.outline import FIT, OutlineRefiner, outline_target
 from dope_training.refine_rgb import refine_rgb
-from dope_training.zoom import ZoomGeometry, load, offsets, zoom_window
+from dope_training.zoom import ZoomGeometry, offsets, zoom_window
 from dope_training.zoom_config import ZoomConfig
 from dope_training.zoom_train import drawn_estimate, train_zoom
 from pegasus_gen.cli.main import main

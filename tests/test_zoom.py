@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from dope_training import zoom_train
 from dope_training.infer import DopeModel
+from dope_training.looks import load
 from dope_training.zoom import (
     OFFSET_STD,
     POSITION,
@@ -22,7 +23,6 @@ from dope_training.zoom import (
     ZoomGeometry,
     ZoomNet,
     ZoomRefiner,
-    load,
     moved,
     offsets,
     save,
