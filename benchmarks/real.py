@@ -382,12 +382,13 @@ def main() -> int:
                   resume=started)
         times[f"train obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
-        zooms = [run / "zoom.pt"] * args.zoom + [run / "outline.pt"] * args.outline
-        for zoom, fields in zip(zooms, [zoom_fields] * args.zoom + [outline_fields] * args.outline):
+        looks = [(run / "zoom.pt", zoom_fields)] * args.zoom + [(run / "outline.pt", outline_fields)] * args.outline
+        for zoom, fields in looks:
             trained_zoom(zoom, ZoomConfig(**fields, object=str(i), out=str(zoom)))
         times[f"zoom obj {i}"] = time.monotonic() - t0
         t0 = time.monotonic()
-        model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto", zoom=zooms or None)
+        model = DopeModel(run / "last.pt", device="cpu" if args.device == "cpu" else "auto",
+                          zoom=[zoom for zoom, _ in looks] or None)
         rows[i] = {"focal_px": focal[i], "diameter_m": diameters[i]}
         where = {how: tuple(out / f"eval{kind}{how}" / f"obj_{i:06d}" for kind in ("_synthetic", "_photo_backed", ""))
                  for how in hows}

@@ -21,7 +21,7 @@ from torch import nn
 
 from dope_training.backbone import BLOCKS, FINE, LiteTrunk, load_pretrained
 from dope_training.refine_rgb import RgbRefineParams, refine_rgb
-from dope_training.zoom import IMAGENET_MEAN, IMAGENET_STD, ZoomGeometry, zoom_window
+from dope_training.zoom import IMAGENET_MEAN, IMAGENET_STD, ZoomGeometry, in_front, zoom_crop, zoom_window
 from pegasus_gen.render.silhouette import mesh_coverage
 
 LOOKS = 2
@@ -92,10 +92,8 @@ class OutlineRefiner:
         over the crop around the estimate T [4, 4] (``zoom_window``), 0 beyond it."""
         g = self.geometry
         w = zoom_window(T, K, g)
-        crop = cv2.warpAffine(image, w.A, (g.crop_px, g.crop_px), flags=cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_REPLICATE)
         with torch.no_grad():
-            p = torch.sigmoid(self.net(crop_tensor(crop[None]).to(self.device))).cpu().numpy()[0]
+            p = torch.sigmoid(self.net(crop_tensor(zoom_crop(image, w, g)[None]).to(self.device))).cpu().numpy()[0]
         height, width = image.shape[:2]
         return cv2.warpAffine(p, w.A, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
@@ -106,7 +104,7 @@ class OutlineRefiner:
         camera plane stays where it is."""
         g = self.geometry
         for _ in range(iterations):
-            if ((g.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
+            if not in_front(T, g):
                 break
             T = refine_rgb(image, K, T, g.vertices, g.faces, FIT, probability=self.probability(image, K, T)).T
         return T

@@ -103,6 +103,18 @@ def zoom_window(T: np.ndarray, K: np.ndarray, g: ZoomGeometry) -> ZoomWindow:
     return ZoomWindow(A, np.vstack([A, [0.0, 0.0, 1.0]]) @ K, p, uv, float(s))
 
 
+def zoom_crop(image: np.ndarray, w: ZoomWindow, g: ZoomGeometry) -> np.ndarray:
+    """[C, C, 3] uint8: ``image`` [H, W, 3] uint8 RGB resampled into the window ``w`` (bilinear, borders
+    replicated)."""
+    return cv2.warpAffine(image, w.A, (g.crop_px, g.crop_px), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def in_front(T: np.ndarray, g: ZoomGeometry) -> bool:
+    """Whether the whole model at T [4, 4] (m) lies in front of the camera plane (a millimetre or more): else an
+    estimate has no crop."""
+    return bool(((g.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() > 1e-3)
+
+
 def zoom_input(image: np.ndarray, T: np.ndarray, K: np.ndarray, g: ZoomGeometry,
                view: str = "silhouette") -> tuple[np.ndarray, np.ndarray, ZoomWindow]:
     """The crop [C, C, 3] uint8 of ``image`` [H, W, 3] uint8 RGB around the estimate T [4, 4] (``zoom_window``),
@@ -112,7 +124,7 @@ def zoom_input(image: np.ndarray, T: np.ndarray, K: np.ndarray, g: ZoomGeometry,
     if view not in VIEW_CHANNELS:
         raise PegasusError(f"a zoom view {view!r}: one of {', '.join(VIEW_CHANNELS)} expected")
     w = zoom_window(T, K, g)
-    crop = cv2.warpAffine(image, w.A, (g.crop_px, g.crop_px), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    crop = zoom_crop(image, w, g)
     channels = [mesh_coverage(g.vertices, g.faces, w.K, T, g.crop_px, g.crop_px, supersample=SUPERSAMPLE)[..., None]]
     if view in SURFACE_VIEWS:
         channels.append(surface_view(g, w.K, T, view))
@@ -230,7 +242,7 @@ class ZoomRefiner:
         its position (and with a WITH_ROTATION network its rotation; else the rotation kept) refined ``iterations``
         times. A pose with part of the model at or behind the camera plane has no crop: it stays where it is."""
         for _ in range(iterations):
-            if ((self.geometry.vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
+            if not in_front(T, self.geometry):
                 break
             crop, view, _ = zoom_input(image, T, K, self.geometry, self.net.view)
             with torch.no_grad():
