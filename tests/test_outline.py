@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
-from test_zoom import median_offsets
+from test_zoom import estimates_with_look, median_offsets
 
 from dope_training.infer import DopeModel
 from dope_training.looks import load
@@ -19,8 +19,6 @@ from dope_training.zoom import ZoomGeometry, zoom_window
 from dope_training.zoom_config import ZoomConfig
 from dope_training.zoom_train import train_zoom
 from pegasus_gen.cli.main import main
-from pegasus_gen.formats.bop import bop_frames
-from pegasus_gen.io.images import read_rgb
 from pegasus_gen.render.silhouette import mesh_coverage
 
 K = np.array([[570.0, 0, 320], [0, 575.0, 240], [0, 0, 1]])
@@ -90,12 +88,7 @@ def test_an_outline_checkpoint_loads_as_the_zooms_and_moves_dope_poses(overfit_d
     checkpoint = _outline_run(dope_dataset, tmp_path / "outline.pt", 1, 2)  # one short epoch: the path, not the skill
     refiner = load(checkpoint)
     assert isinstance(refiner, OutlineRefiner) and refiner.geometry.crop_px == 64
-    plain = DopeModel(overfit_dope / "last.pt")
-    looked = DopeModel(overfit_dope / "last.pt", zoom=checkpoint)
-    frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
-    image = read_rgb(frame.image)
-    first, second = plain.estimate(image, frame.K), looked.estimate(image, frame.K)
-    assert len(first) == len(second) > 0
+    frame, image, first, looked, second = estimates_with_look(overfit_dope, dope_dataset, checkpoint)
     for a, b in zip(first, second):
         np.testing.assert_allclose(b.T, looked.zoom.refine(image, frame.K, a.T), atol=1e-9)
         assert np.isfinite(b.T).all()

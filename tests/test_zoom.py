@@ -312,18 +312,26 @@ def median_offsets(refiner, dataset, per_instance: int) -> tuple[np.ndarray, np.
     return np.median(before, axis=0), np.median(after, axis=0)
 
 
+def estimates_with_look(overfit_dope, dope_dataset, look) -> tuple:
+    """``overfit_dope``'s estimates on the first frame of ``dope_dataset``, without and with ``look`` (one look's
+    checkpoint or several, as ``DopeModel(zoom=)`` takes them): (frame, image, the estimates without, the model with
+    the look, its estimates), the two lists of one length and not empty."""
+    plain = DopeModel(overfit_dope / "last.pt")
+    looked = DopeModel(overfit_dope / "last.pt", zoom=look)
+    frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
+    image = read_rgb(frame.image)
+    first, second = plain.estimate(image, frame.K), looked.estimate(image, frame.K)
+    assert len(first) == len(second) > 0
+    return frame, image, first, looked, second
+
+
 def test_a_zoom_network_brings_estimates_back_towards_the_truth(zoom_run, dope_dataset):
     before, after = median_offsets(load(zoom_run), dope_dataset, 8)
     assert (after < 0.4 * before).all(), (before, after)  # measured: 0.13-0.16 (at 6 epochs 0.19-0.42)
 
 
 def test_dope_poses_pass_through_the_zoom_network_with_their_rotation_kept(overfit_dope, zoom_run, dope_dataset):
-    plain = DopeModel(overfit_dope / "last.pt")
-    zoomed = DopeModel(overfit_dope / "last.pt", zoom=zoom_run)
-    frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
-    image = read_rgb(frame.image)
-    first, second = plain.estimate(image, frame.K), zoomed.estimate(image, frame.K)
-    assert len(first) == len(second) > 0
+    frame, image, first, zoomed, second = estimates_with_look(overfit_dope, dope_dataset, zoom_run)
     for a, b in zip(first, second):
         np.testing.assert_array_equal(a.T[:3, :3], b.T[:3, :3])
         np.testing.assert_allclose(b.T, zoomed.zoom.refine(image, frame.K, a.T), atol=1e-9)
