@@ -94,7 +94,8 @@ def test_an_outline_checkpoint_loads_as_the_zooms_and_moves_dope_poses(overfit_d
         assert np.isfinite(b.T).all()
     # after the offsets look, in turn: in the library and on the command line (--zoom twice)
     chained = DopeModel(overfit_dope / "last.pt", zoom=[zoom_run, checkpoint]).estimate(image, frame.K)
-    expected = [refiner.refine(image, frame.K, load(zoom_run).refine(image, frame.K, a.T)) for a in first]
+    offsets_look = load(zoom_run)
+    expected = [refiner.refine(image, frame.K, offsets_look.refine(image, frame.K, a.T)) for a in first]
     for c, e in zip(chained, expected):
         np.testing.assert_allclose(c.T, e, atol=1e-9)
     assert main(["infer", "--model", str(overfit_dope / "last.pt"), "--image", str(frame.image), "--K",
