@@ -23,6 +23,7 @@ With refinement against the RGB image (``refine_rgb``: the silhouette of the dat
 fitted to the image's colour edges, ``dope_training.refine_rgb``; after the zoom network where there is one) the whole
 report is that of the refined poses, each scored by its detection score (``decode``: centroid and corners) times
 the share of its outline the image supports (``RgbRefinement.support``), and ``min_score`` applies to that score.
+Each estimate's score is ``ObjectPose.score``: with zoomed looks also the detection score times its outline's support.
 The report's ``estimates`` are the poses output for the evaluated images in BOP19's results form (scene_id, im_id,
 obj_id, score, R row-major, t in mm, time: the image's inference seconds): the refined poses the refinement accepted
 with ``refine``, else the PnP (or RGB-refined) poses. Errors are computed over the vertices of the dataset's

@@ -17,7 +17,9 @@ refinement starts on the same ray with the object's own axes (the several-start 
 rotations), and it is kept when the depth confirms it. With the object's mesh instead, each solved pose is
 refined against the RGB image itself (``refine_rgb``: its silhouette fitted to the image's colour edges). With a
 zoom network (``zoom``: a second, zoomed-in look at each estimate that moves its centre and distance), each solved
-pose is moved by it first, before either refinement.
+pose is moved by it first, before either refinement, and scored by its detection score times the share of its outline
+that the image's colour edges confirm there (``refine_rgb.outline_support``: on generated held-out frames and on
+the photos it keeps fewer false estimates at a lower detection score, docs/TRAINING.md).
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from dope_training.looks import load as load_zoom
 from dope_training.model import check_memory, config_from_dict, memory_estimate, torch_device
 from dope_training.pnp import solve_pose_consensus
 from dope_training.refine import Refinement, refine_multistart
-from dope_training.refine_rgb import RgbRefinement, refine_rgb
+from dope_training.refine_rgb import RgbRefinement, outline_support, refine_rgb
 from dope_training.targets import STRIDE, distance_from_code, mapped_focal, off_axis_factor, read_map
 from pegasus_gen.errors import PegasusError
 
@@ -56,14 +58,22 @@ class ObjectPose:
     score (``decode.Detection.score``), keypoints [P, 2] in image pixels (NaN where not found), the mean
     reprojection error (px, NaN without PnP) and, when a depth image was given, the depth refinement
     (``refine.Refinement``), or when the object's mesh was, the refinement against the RGB image
-    (``refine_rgb.RgbRefinement``)."""
+    (``refine_rgb.RgbRefinement``); with zoomed looks, ``support``: the share of T's outline that the image's
+    colour edges confirm (``refine_rgb.outline_support``). ``score`` ranks and thresholds it: the detection score,
+    times ``support`` where there is one."""
 
     T: np.ndarray | None
-    score: float
+    detection_score: float
     keypoints: np.ndarray
     reprojection_error: float
     refinement: Refinement | None = None
     rgb_refinement: RgbRefinement | None = None
+    support: float | None = None
+
+    @property
+    def score(self) -> float:
+        """The detection score times the outline's ``support`` where there is one (0..1)."""
+        return self.detection_score * (1.0 if self.support is None else self.support)
 
     @property
     def refined(self) -> np.ndarray | None:
@@ -73,6 +83,7 @@ class ObjectPose:
     def to_json(self) -> dict:
         out = {"R": None if self.T is None else self.T[:3, :3].tolist(),
                "t_m": None if self.T is None else self.T[:3, 3].tolist(), "score": self.score,
+               "detection_score": self.detection_score, "support": self.support,
                "keypoints_px": [None if np.isnan(p).any() else p.tolist() for p in self.keypoints],
                "reprojection_error_px": None if self.T is None else self.reprojection_error}
         if self.refinement is not None:
@@ -87,10 +98,10 @@ class ObjectPose:
 
 def rgb_refined(poses: list[ObjectPose], min_score: float = 0.0) -> list[ObjectPose]:
     """The poses that ``DopeModel.estimate`` refined against the RGB image, as poses of their own: T the refined
-    T_cam_obj, scored by the detection score times the share of the outline the image supports
+    T_cam_obj, scored by the detection score times the share of the outline the image supports there
     (``RgbRefinement.support``: on generated held-out frames the product separates right estimates from false
     ones better than either), best first, those under ``min_score`` left out."""
-    out = [replace(p, T=p.rgb_refinement.T, score=p.score * p.rgb_refinement.support)
+    out = [replace(p, T=p.rgb_refinement.T, support=p.rgb_refinement.support)
            for p in poses if p.rgb_refinement is not None]
     return sorted((p for p in out if p.score >= min_score), key=lambda p: -p.score)
 
@@ -269,7 +280,9 @@ class DopeModel:
         an instance PnP cannot solve is kept (T None) when its refinement from the centroid's ray is accepted.
         With ``mesh`` (the object's vertices [V, 3] in metres, model frame, and faces [F, 3]; best through
         ``refine_rgb.decimated``) and no depth, each pose is also refined against the image (``refine_rgb``;
-        a pinhole camera: no ``dist``). With a zoom network, an undistorted image (no ``dist``)."""
+        a pinhole camera: no ``dist``). With a zoom network, an undistorted image (no ``dist``), and each pose scored
+        by its detection score times its outline's support after the looks (``ObjectPose.score``), ``min_score``
+        applying to that."""
         if depth_m is not None and self.surface is None:
             raise PegasusError(f"{self.path}: this model carries no surface points of its object (trained on a "
                                "DOPE/NDDS folder), so it cannot be refined with depth")
@@ -298,9 +311,13 @@ class DopeModel:
                 if self.config.distance_off_axis:
                     z /= float(off_axis_factor(centroid_ray(keypoints[-1], K, dist)))
                 T = on_centroid_ray(T, self.points, keypoints[-1], K, dist, z_m=z)
+            support = None
             if T is not None and self.zoom is not None:
                 T = self.zoom.refine(image, K, T)
-            pose = ObjectPose(T, det.score, keypoints, error)
+                support = outline_support(image, K, T, *self.zoom.mesh)
+            pose = ObjectPose(T, det.score, keypoints, error, support=support)
+            if mesh is None and pose.score < min_score:  # refined against the image, its refinement scores it
+                continue
             if depth_m is not None:
                 start = on_centroid_ray(NO_PNP_START if T is None else T, self.points, keypoints[-1], K, dist, depth_m)
                 pose.refinement = refine_multistart(start, depth_m, K, *self.surface, self.object.symmetry_axis)
@@ -309,4 +326,4 @@ class DopeModel:
             elif mesh is not None:
                 pose.rgb_refinement = refine_rgb(image, K, T, *mesh)
             poses.append(pose)
-        return poses
+        return sorted(poses, key=lambda p: -p.score)

@@ -28,6 +28,11 @@ class ZoomChain:
     def __init__(self, looks: list):
         self.looks = looks
 
+    @property
+    def mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        """The object's decimated mesh that the looks fit (vertices [V, 3] m, model frame; faces [F, 3])."""
+        return self.looks[-1].geometry.vertices, self.looks[-1].geometry.faces
+
     def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray) -> np.ndarray:
         """T [4, 4] moved by each look in turn (see ``ZoomRefiner.refine``)."""
         for look in self.looks:

@@ -44,6 +44,7 @@ from pegasus_gen.errors import PegasusError
 from pegasus_gen.render.silhouette import mesh_silhouette
 
 MAX_FACES = 1500  # ``decimated``'s default: triangles enough for the outline of a 60-200 px object
+SUPPORT_SEARCH_PX = 6.0  # ``outline_support`` seeks each edge this far each side of the outline (the fit's last stage)
 
 
 @dataclass
@@ -231,6 +232,73 @@ def _steepest(crop: np.ndarray, points: np.ndarray, normals: np.ndarray, centre:
     return s[rows, i + k] + np.clip(frac, -1.0, 1.0) * step
 
 
+def _checked(image: np.ndarray, probability: np.ndarray | None) -> np.ndarray:
+    """``image`` as an array; a PegasusError when it is not [H, W, 3] uint8 or ``probability`` not [H, W]."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise PegasusError(f"refine_rgb: the image must be [H, W, 3] uint8, not {image.dtype} {image.shape}")
+    if probability is not None and np.shape(probability) != image.shape[:2]:
+        raise PegasusError(f"refine_rgb: a probability map of {np.shape(probability)} for an image of "
+                           f"{image.shape[:2]}")
+    return image
+
+
+def _about_centre(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices [V, 3] (m) less the centre [3] of their box, and that centre."""
+    vertices = np.asarray(vertices, np.float64)
+    centre = (vertices.min(0) + vertices.max(0)) / 2
+    return vertices - centre, centre
+
+
+@dataclass
+class _Lines:
+    """The outline's lines at one pose (steps 1-3 of the module docstring): the region of interest they lie in, the
+    edge found along each line [N, 2] (roi px), the rendered outline's signed distance there [N] (px: the residuals),
+    each edge's spread [N] (px) and contrast [N] (nats), and the outline's radius (px)."""
+
+    roi: _Roi
+    targets: np.ndarray
+    residual: np.ndarray
+    spread: np.ndarray
+    contrast: np.ndarray
+    radius_px: float
+
+
+def _lines(image: np.ndarray, K: np.ndarray, T: np.ndarray, local: np.ndarray, faces: np.ndarray, half: float,
+           params: RgbRefineParams, probability: np.ndarray | None) -> _Lines | None:
+    """The outline's lines of the mesh ``local`` [V, 3] (m, about its centre; ``faces`` [F, 3]) at T [4, 4]
+    (``_centred``) in ``image`` [H, W, 3] uint8 (K [3, 3]), each edge searched ``half`` px each side, in the colours
+    or in ``probability`` [H, W] (see ``refine_rgb``); None when the object does not project into the image in front
+    of the camera, or its outline or colours are too small to read."""
+    height, width = image.shape[:2]
+    v = local @ T[:3, :3].T + T[:3, 3]
+    if (v[:, 2] <= 1e-3).any():
+        return None
+    uv = v[:, :2] / v[:, 2:3] * K.diagonal()[:2] + K[:2, 2]
+    if (uv.max(0) < 0).any() or uv[:, 0].min() >= width or uv[:, 1].min() >= height:
+        return None
+    roi = _Roi(uv, half + params.band_px + 4, width, height, K)
+    if roi.w < 8 or roi.h < 8:
+        return None
+    crop = image[roi.y0:roi.y0 + roi.h, roi.x0:roi.x0 + roi.w]
+    mask = mesh_silhouette(local, faces, roi.K, T, roi.w, roi.h)
+    contour = _contour(mask, params.lines)
+    if probability is None:
+        prob = _foreground_probability(crop, mask, params)
+    else:  # its steepest change is sought in it, as in colours (0..255)
+        prob = np.asarray(probability[roi.y0:roi.y0 + roi.h, roi.x0:roi.x0 + roi.w], np.float32)
+        crop = 255 * prob[..., None]
+    if contour is None or prob is None:
+        return None
+    points, normals = contour
+    offset, spread, contrast = _edges(prob, points, normals, half)
+    if params.edge_window_px > 0:
+        offset = _steepest(crop, points, normals, offset, params.edge_window_px)
+    targets = points + offset[:, None] * normals
+    radius_px = max(float(np.linalg.norm(uv - uv.mean(0), axis=1).max()), 4.0)
+    return _Lines(roi, targets, _sample(_signed_distance(mask), targets), spread, contrast, radius_px)
+
+
 def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                params: RgbRefineParams | None = None, probability: np.ndarray | None = None) -> RgbRefinement:
     """The pose T_cam_obj [4, 4] (metres, OpenCV camera frame) of the object whose mesh is ``vertices`` [V, 3]
@@ -241,56 +309,26 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
     edge's steepest change in it instead of in the colours. The input pose comes back (support 0) when the object
     does not project into the image in front of the camera."""
     params = params or RgbRefineParams()
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise PegasusError(f"refine_rgb: the image must be [H, W, 3] uint8, not {image.dtype} {image.shape}")
-    height, width = image.shape[:2]
-    if probability is not None and np.shape(probability) != (height, width):
-        raise PegasusError(f"refine_rgb: a probability map of {np.shape(probability)} for an image of "
-                           f"{(height, width)}")
-    vertices = np.asarray(vertices, np.float64)
-    centre = (vertices.min(0) + vertices.max(0)) / 2
-    local = vertices - centre
+    image = _checked(image, probability)
+    local, centre = _about_centre(vertices)
     T = _centred(np.asarray(T_cam_obj, np.float64), centre)
     support, done = 0.0, 0
     for half in params.half_length_px:
-        v = local @ T[:3, :3].T + T[:3, 3]
-        if (v[:, 2] <= 1e-3).any():
+        lines = _lines(image, K, T, local, faces, half, params, probability)
+        if lines is None:
             break
-        uv = v[:, :2] / v[:, 2:3] * K.diagonal()[:2] + K[:2, 2]
-        if (uv.max(0) < 0).any() or uv[:, 0].min() >= width or uv[:, 1].min() >= height:
-            break
-        roi = _Roi(uv, half + params.band_px + 4, width, height, K)
-        if roi.w < 8 or roi.h < 8:
-            break
-        crop = image[roi.y0:roi.y0 + roi.h, roi.x0:roi.x0 + roi.w]
-        mask = mesh_silhouette(local, faces, roi.K, T, roi.w, roi.h)
-        contour = _contour(mask, params.lines)
-        if probability is None:
-            prob = _foreground_probability(crop, mask, params)
-        else:  # its steepest change is sought in it, as in colours (0..255)
-            prob = np.asarray(probability[roi.y0:roi.y0 + roi.h, roi.x0:roi.x0 + roi.w], np.float32)
-            crop = 255 * prob[..., None]
-        if contour is None or prob is None:
-            break
-        points, normals = contour
-        offset, spread, contrast = _edges(prob, points, normals, half)
-        if params.edge_window_px > 0:
-            offset = _steepest(crop, points, normals, offset, params.edge_window_px)
-        targets = points + offset[:, None] * normals
-        residual = _sample(_signed_distance(mask), targets)
+        roi, targets, residual = lines.roi, lines.targets, lines.residual
         # finite differences: steps that move the outline by about step_px
         z = T[2, 3]
         f = K[0, 0]
-        radius_px = max(np.linalg.norm(uv - uv.mean(0), axis=1).max(), 4.0)
-        steps = params.step_px * np.r_[[1.0 / radius_px] * 3, [z / f] * 2, z / radius_px]
+        steps = params.step_px * np.r_[[1.0 / lines.radius_px] * 3, [z / f] * 2, z / lines.radius_px]
         J = np.empty((len(targets), 6))
         for i in range(6):
             delta = np.zeros(6)
             delta[i] = steps[i]
             moved = mesh_silhouette(local, faces, roi.K, _twist(T, delta), roi.w, roi.h)
             J[:, i] = (_sample(_signed_distance(moved), targets) - residual) / steps[i]
-        weight = np.minimum(contrast / params.min_contrast, 1.0) / np.maximum(spread, 0.5) ** 2
+        weight = np.minimum(lines.contrast / params.min_contrast, 1.0) / np.maximum(lines.spread, 0.5) ** 2
         a = np.abs(residual)
         if half <= params.tukey_from_px:
             weight *= np.where(a < params.tukey_px, (1 - (a / params.tukey_px) ** 2) ** 2, 0.0)
@@ -305,6 +343,19 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
         except np.linalg.LinAlgError:
             break
         T = _twist(T, delta)
-        support = float(np.mean(np.abs(residual) <= params.support_px))
+        support = float(np.mean(np.abs(residual) <= params.support_px))  # as outline_support's
         done += 1
     return RgbRefinement(_centred(T, -centre), support, done)
+
+
+def outline_support(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                    half_px: float = SUPPORT_SEARCH_PX, params: RgbRefineParams | None = None) -> float:
+    """How well ``image`` [H, W, 3] uint8 (K [3, 3]) confirms the pose T_cam_obj [4, 4] (m) of the mesh ``vertices``
+    [V, 3] (m, model frame; ``faces`` [F, 3]) as it is: the share (0..1) of its outline's lines whose colour edge,
+    searched ``half_px`` each side, lies within ``support_px`` of the outline (``RgbRefinement.support`` without
+    moving the pose); 0 when the object does not project into the image in front of the camera."""
+    params = params or RgbRefineParams()
+    local, centre = _about_centre(vertices)
+    lines = _lines(_checked(image, None), K, _centred(np.asarray(T_cam_obj, np.float64), centre), local, faces,
+                   half_px, params, None)
+    return 0.0 if lines is None else float(np.mean(np.abs(lines.residual) <= params.support_px))

@@ -315,12 +315,17 @@ def median_offsets(refiner, dataset, per_instance: int) -> tuple[np.ndarray, np.
 def estimates_with_look(overfit_dope, dope_dataset, look) -> tuple:
     """``overfit_dope``'s estimates on the first frame of ``dope_dataset``, without and with ``look`` (one look's
     checkpoint or several, as ``DopeModel(zoom=)`` takes them): (frame, image, the estimates without, the model with
-    the look, its estimates), the two lists of one length and not empty."""
+    the look, its estimates of the same detections in the same order), the two lists of one length and not empty."""
     plain = DopeModel(overfit_dope / "last.pt")
     looked = DopeModel(overfit_dope / "last.pt", zoom=look)
     frame = next(iter(bop_frames(dope_dataset / "train_pbr")))
     image = read_rgb(frame.image)
-    first, second = plain.estimate(image, frame.K), looked.estimate(image, frame.K)
+    first, second = plain.estimate(image, frame.K), looked.estimate(image, frame.K, min_score=0.0)
+    assert second == sorted(second, key=lambda p: -p.score)  # by detection score x outline support
+    for p in second:
+        assert 0.0 <= p.support <= 1.0 and p.score == p.detection_score * p.support
+    # the same detections, paired by their keypoints (the outline support reorders them)
+    second = [next(s for s in second if np.array_equal(s.keypoints, f.keypoints, equal_nan=True)) for f in first]
     assert len(first) == len(second) > 0
     return frame, image, first, looked, second
 

@@ -116,7 +116,9 @@ def cmd_infer(args) -> int:
     png, path = write_poses(args.out, args.image, image, K, poses, model, ms)
     print(f"{len(poses)} instance(s) of {obj.name!r} in {ms:.0f} ms on {model.backend}")
     for pose in poses:
-        print(f"  score {pose.score:.2f}  " + ("PnP: no pose from its keypoints" if pose.T is None else
+        support = "" if pose.support is None else f" (detection {pose.detection_score:.2f} x outline support " \
+            f"{pose.support:.2f})"
+        print(f"  score {pose.score:.2f}{support}  " + ("PnP: no pose from its keypoints" if pose.T is None else
               f"t = {np.round(pose.T[:3, 3], 4).tolist()} m  reprojection {pose.reprojection_error:.1f} px"))
         r = pose.refinement
         if r is not None:
@@ -207,13 +209,15 @@ def add_commands(sub) -> None:
         p.add_argument("--model", required=True, help="ONNX export (onnxruntime) or training checkpoint .pt (torch)")
         options.add_device(p, default="cpu")
         p.add_argument("--min-score", type=float, default=0.1,
-                       help="lowest detection score kept (geometric mean of the centroid's and corners' beliefs)")
+                       help="lowest score kept: the detection score (geometric mean of the centroid's and corners' "
+                       "beliefs), with --zoom times the share of the outline the image supports")
         p.add_argument("--no-distance-head", dest="distance_head", action="store_false",
                        help="place the poses where PnP puts them even when the network has a distance head")
         p.add_argument("--zoom", metavar="CHECKPOINT", action="append",
                        help="a zoom network of the same object (pegasus train-zoom): a second, zoomed-in look at each "
                        "estimate moves it; repeatable, applied in the order given (the offsets look, then the "
-                       "outline look)")
+                       "outline look); each estimate is then scored by its detection score times the share of its "
+                       "outline the image's colour edges support")
     p = sub.choices["infer"]
     p.add_argument("--image", required=True)
     p.add_argument("--K", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"), help="camera intrinsics, px")
