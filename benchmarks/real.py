@@ -33,15 +33,17 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    and the model's fitted to it; the same fields without rotation and view, ``OUT/runs/obj_ID/outline.pt``;
    ``--no-outline``: none); each reused when there and trained with the same fields (``zoom.txt`` and
    ``outline.txt`` record them).
-4. Per object, with the zoom networks: ``pegasus eval`` figures on the synthetic held-out set and on its
-   photo-backed copy (``OUT/held_out_photos``: the same frames with the background photos that training keeps back,
-   ``backgrounds.split_photos``, behind their labelled objects: real textures the network never saw), which set
-   the detection score (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per image and
-   keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split with it
+4. Per object, with the zoom networks (each estimate scored by its detection score times the share of its outline
+   that the image's colour edges support at the looks' pose): ``pegasus eval`` figures on the synthetic held-out
+   set and on its photo-backed copy (``OUT/held_out_photos``: the same frames with the background photos that
+   training keeps back, ``backgrounds.split_photos``, behind their labelled objects: real textures the network never
+   saw), which set the score threshold (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per
+   image and keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split with
+   it
    (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
    and the gallery of the worst images); with ``--refine-rgb`` then the same again with those poses refined against
    the images (``pegasus eval --refine-rgb``: the dataset's model's silhouette fitted to the image's colour edges,
-   scored by belief x outline support, its own detection score set the same way; after the outline look it costs
+   scored by belief x outline support there, its own score threshold set the same way; after the outline look it costs
    on generated frames, docs/TRAINING.md; one pass of inference gives both) in ``OUT/eval_rgb``,
    ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``. RGB alone, no depth.
 
