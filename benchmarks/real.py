@@ -38,13 +38,12 @@ image size, and for scoring the split's ground truth. Steps, each with its time:
    set and on its photo-backed copy (``OUT/held_out_photos``: the same frames with the background photos that
    training keeps back, ``backgrounds.split_photos``, behind their labelled objects: real textures the network never
    saw), which set the score threshold (the lowest leaving ``recipe.HELD_OUT_FALSE_POSITIVES`` false positives per
-   image and keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split with
-   it
-   (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the curve
-   and the gallery of the worst images); with ``--refine-rgb`` then the same again with those poses refined against
-   the images (``pegasus eval --refine-rgb``: the dataset's model's silhouette fitted to the image's colour edges,
-   scored by belief x outline support there, its own score threshold set the same way; after the outline look it costs
-   on generated frames, docs/TRAINING.md; one pass of inference gives both) in ``OUT/eval_rgb``,
+   image and keeping ``recipe.HELD_OUT_KEEP_FOUND`` of the instances found, on both sets); then on the real split
+   with it (``OUT/eval/obj_ID``, ``OUT/eval_synthetic/obj_ID`` and ``OUT/eval_photo_backed/obj_ID``: eval.json, the
+   curve and the gallery of the worst images); with ``--refine-rgb`` then the same again with those poses refined
+   against the images (``pegasus eval --refine-rgb``: the dataset's model's silhouette fitted to the image's colour
+   edges, scored by belief x outline support there, its own score threshold set the same way; after the outline look
+   it costs on generated frames, docs/TRAINING.md; one pass of inference gives both) in ``OUT/eval_rgb``,
    ``OUT/eval_synthetic_rgb`` and ``OUT/eval_photo_backed_rgb``. RGB alone, no depth.
 
 Writes ``OUT/real.json`` (with each step's seconds and the minutes per object: its training and evaluation, and

@@ -15,8 +15,8 @@ trainer_node publishes it), ``device`` (cpu | cuda | auto), ``min_score``, ``ref
 ``refine_rgb`` (the object's mesh, PLY/OBJ in its model frame, ``mesh_scale`` metres per unit: refine against
 the image, ``refine_rgb.refine_rgb``; empty: off), ``zoom`` (a zoom network of the same object, ``pegasus
 train-zoom``, or several comma-separated, applied in turn: every pose moved by its zoomed second look first and
-scored by its detection score times its outline's support there, ``ObjectPose.score``; empty: off), ``use_pose`` (raw
-| refined),
+scored by its detection score times its outline's support there, ``ObjectPose.score``; empty: off),
+``use_pose`` (raw | refined),
 ``max_images`` (> 0: end after that many images). Broadcasts on /tf each instance's pose (refined where accepted)
 as the transform from the image's frame to ``<object>_<k>`` (k by score).
 """
