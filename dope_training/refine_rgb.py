@@ -263,6 +263,10 @@ class _Lines:
     contrast: np.ndarray
     radius_px: float
 
+    def support(self, within_px: float) -> float:
+        """The share (0..1) of the lines whose edge lies within ``within_px`` of the outline."""
+        return float(np.mean(np.abs(self.residual) <= within_px))
+
 
 def _lines(image: np.ndarray, K: np.ndarray, T: np.ndarray, local: np.ndarray, faces: np.ndarray, half: float,
            params: RgbRefineParams, probability: np.ndarray | None) -> _Lines | None:
@@ -343,7 +347,7 @@ def refine_rgb(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, vertices
         except np.linalg.LinAlgError:
             break
         T = _twist(T, delta)
-        support = float(np.mean(np.abs(residual) <= params.support_px))  # as outline_support's
+        support = lines.support(params.support_px)
         done += 1
     return RgbRefinement(_centred(T, -centre), support, done)
 
@@ -358,4 +362,4 @@ def outline_support(image: np.ndarray, K: np.ndarray, T_cam_obj: np.ndarray, ver
     local, centre = _about_centre(vertices)
     lines = _lines(_checked(image, None), K, _centred(np.asarray(T_cam_obj, np.float64), centre), local, faces,
                    half_px, params, None)
-    return 0.0 if lines is None else float(np.mean(np.abs(lines.residual) <= params.support_px))
+    return 0.0 if lines is None else lines.support(params.support_px)

@@ -107,7 +107,7 @@ def test_the_outline_support_confirms_the_true_pose_and_not_a_wrong_one_or_the_b
         aside[0, 3] += 0.15  # on the blotchy background, beside the object
         right.append(outline_support(image, K, T, vertices, faces))
         wrong += [outline_support(image, K, p, vertices, faces) for p in (_perturbed(T, seed), aside)]
-        assert outline_support(image, K, T, vertices, faces) == refine_rgb(  # the fit's support, without the fit
+        assert right[-1] == refine_rgb(  # the fit's support, without the fit
             image, K, T, vertices, faces, RgbRefineParams(half_length_px=(6.0,))).support
     # measured: 1.0 at every true pose; 0.22-0.73 (mean 0.44) off it or beside it, where a flat background's
     # lines find their edge at the outline by chance
