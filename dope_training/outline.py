@@ -9,7 +9,9 @@ pixels through its stride-8, -4 and -2 features) reads each crop pixel's probabi
 the model at its true pose is seen, taught from the generated frames' poses and visible masks. The pose is then
 fitted to that map as the refinement against the image fits it to the colours (``refine_rgb`` with the map as its
 ``probability``): every part of the outline counts, and a misread part is outvoted by the rest. ``LOOKS`` looks,
-each from the pose the last fit gave; the fit moves the whole pose.
+each from the pose the last fit gave; the fit moves the whole pose. The first look's fit also starts from the estimate
+turned by ``START_TURNS_DEG`` either way about the camera's x and y axes, and keeps the fit whose silhouette agrees
+best with the map (``map_agreement``): a fit from one start stops in the nearest minimum, often a turned one.
 """
 
 from __future__ import annotations
@@ -17,17 +19,19 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 from torch import nn
 
 from dope_training.backbone import BLOCKS, FINE, LiteTrunk, load_pretrained
 from dope_training.refine_rgb import RgbRefineParams, refine_rgb
 from dope_training.zoom import IMAGENET_MEAN, IMAGENET_STD, ZoomGeometry, in_front, zoom_crop, zoom_window
-from pegasus_gen.render.silhouette import mesh_coverage
+from pegasus_gen.render.silhouette import mesh_coverage, mesh_silhouette
 
 LOOKS = 2
 # the fit to the map: the map's edges are clean, so the search starts 12 px wide and ends 3 px wide
 FIT = RgbRefineParams(half_length_px=(12.0, 12.0, 6.0, 6.0, 6.0, 3.0, 3.0))
 TARGET_SUPERSAMPLE = 4  # the true silhouette's coverage, 4 x 4 samples per crop pixel
+START_TURNS_DEG = (15.0, 30.0)  # the first fit's further starts: the estimate turned so far about camera x and y
 
 
 def _conv(cin: int, cout: int) -> nn.Sequential:
@@ -81,11 +85,49 @@ def outline_target(T_true: np.ndarray, visible: np.ndarray, A: np.ndarray, K_cro
     return np.minimum(cover, seen).astype(np.float32)
 
 
+def turned(T: np.ndarray, centre: np.ndarray, axis: int, deg: float) -> np.ndarray:
+    """T [4, 4] (m) turned ``deg`` degrees about the camera's axis ``axis`` (0 x, 1 y, 2 z) through the model point
+    ``centre`` [3] (m, model frame), which stays where it was."""
+    R = Rotation.from_rotvec(np.deg2rad(deg) * np.eye(3)[axis]).as_matrix()
+    out = T.copy()
+    out[:3, :3] = R @ T[:3, :3]
+    out[:3, 3] = T[:3, :3] @ centre + T[:3, 3] - out[:3, :3] @ centre
+    return out
+
+
+def map_agreement(probability: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
+                  T: np.ndarray) -> float:
+    """How well the model (vertices [V, 3] m, faces [F, 3]) at T [4, 4] agrees with ``probability`` [H, W] (0..1; K
+    [3, 3]): the soft IoU sum(p s) / sum(p + s - p s) of the map p and the silhouette s (0/1), in [0, 1]; -1 when part
+    of the model lies at or behind the camera plane."""
+    if ((vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
+        return -1.0
+    height, width = probability.shape
+    s = mesh_silhouette(vertices, faces, K, T, width, height).astype(np.float32)
+    p = np.asarray(probability, np.float32)
+    return float((p * s).sum() / max(float((p + s - p * s).sum()), 1e-6))
+
+
+def fit_from_starts(image: np.ndarray, K: np.ndarray, T: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                    centre: np.ndarray, probability: np.ndarray,
+                    turns_deg: tuple[float, ...] = START_TURNS_DEG) -> np.ndarray:
+    """T [4, 4] fitted to ``probability`` [H, W] (``refine_rgb``'s arguments) from T itself and from T turned
+    +-each of ``turns_deg`` about the camera's x and y axes through ``centre`` [3] (``turned``): the fit with the
+    best ``map_agreement``, the first on a tie."""
+    starts = [T] + [turned(T, centre, axis, sign * deg) for axis in (0, 1) for sign in (-1, 1) for deg in turns_deg]
+    fits = [refine_rgb(image, K, S, vertices, faces, FIT, probability=probability).T for S in starts]
+    if len(fits) == 1:
+        return fits[0]
+    return fits[int(np.argmax([map_agreement(probability, vertices, faces, K, F) for F in fits]))]
+
+
 class OutlineRefiner:
     """A trained outline look for one object (``looks.load``) and its geometry: ``refine`` as ``ZoomRefiner``'s."""
 
-    def __init__(self, net: OutlineNet, geometry: ZoomGeometry, obj_id: int, name: str, device: torch.device):
+    def __init__(self, net: OutlineNet, geometry: ZoomGeometry, obj_id: int, name: str, device: torch.device,
+                 turns_deg: tuple[float, ...] = START_TURNS_DEG):
         self.net, self.geometry, self.obj_id, self.name, self.device = net.eval(), geometry, obj_id, name, device
+        self.turns_deg = tuple(turns_deg)
 
     def probability(self, image: np.ndarray, K: np.ndarray, T: np.ndarray) -> np.ndarray:
         """[H, W] float32 0..1: the network's probability of the object in ``image`` [H, W, 3] uint8 RGB (K [3, 3])
@@ -100,13 +142,15 @@ class OutlineRefiner:
 
     def refine(self, image: np.ndarray, K: np.ndarray, T: np.ndarray, iterations: int = LOOKS) -> np.ndarray:
         """T [4, 4] of an estimate in ``image`` [H, W, 3] uint8 RGB (an undistorted pinhole camera, K [3, 3]) fitted
-        ``iterations`` times to the network's map of the object. A pose with part of the model at or behind the
-        camera plane stays where it is."""
+        ``iterations`` times to the network's map of the object, the first time from several starts
+        (``fit_from_starts`` with ``turns_deg``). A pose with part of the model at or behind the camera plane stays
+        where it is."""
         g = self.geometry
-        for _ in range(iterations):
+        for look in range(iterations):
             if not in_front(T, g):
                 break
-            T = refine_rgb(image, K, T, g.vertices, g.faces, FIT, probability=self.probability(image, K, T)).T
+            T = fit_from_starts(image, K, T, g.vertices, g.faces, g.centre, self.probability(image, K, T),
+                                self.turns_deg if look == 0 else ())
         return T
 
 
