@@ -115,7 +115,7 @@ def test_the_fit_from_several_starts_comes_back_from_a_turned_estimate():
             start = turned(truth, g.centre, axis, deg)
             one = fit_from_starts(blank, K, start, g.vertices, g.faces, g.centre, probability, ())
             np.testing.assert_allclose(one, refine_rgb(blank, K, start, g.vertices, g.faces, FIT,
-                                                       probability=probability).T)
+                                                       probability=probability).T, atol=1e-7)  # BLAS: 2e-9 seen
             many = fit_from_starts(blank, K, start, g.vertices, g.faces, g.centre, probability)
             assert _rotation_error_deg(many, truth) < 3.0, (axis, deg)  # measured 0.5-1.3
             assert map_agreement(probability, g.vertices, g.faces, K, many) >= \
@@ -144,7 +144,7 @@ def test_the_outline_look_fits_from_several_starts_first_then_from_one():
     assert _rotation_error_deg(one.refine(blank, K, start), truth) > 10.0
     first = fit_from_starts(blank, K, start, g.vertices, g.faces, g.centre, several.map, (15.0, 30.0))
     np.testing.assert_allclose(several.refine(blank, K, start), fit_from_starts(
-        blank, K, first, g.vertices, g.faces, g.centre, several.map, ()))
+        blank, K, first, g.vertices, g.faces, g.centre, several.map, ()), atol=1e-7)
 
 
 def test_the_target_is_the_true_silhouette_where_the_instance_is_seen():
