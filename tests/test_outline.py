@@ -82,12 +82,12 @@ def _rotation_error_deg(A: np.ndarray, B: np.ndarray) -> float:
 
 def test_a_turned_start_turns_about_the_camera_axis_and_keeps_the_centre_in_place():
     g, T = _box(), _pose(0.8)
+    centre = g.centre + [0.01, 0, 0]
     for axis in range(3):
         for deg in (-30.0, 12.5):
-            S = turned(T, g.centre + [0.01, 0, 0], axis, deg)
+            S = turned(T, centre, axis, deg)
             np.testing.assert_allclose(S[:3, :3] @ T[:3, :3].T,
                                        Rotation.from_rotvec(np.radians(deg) * np.eye(3)[axis]).as_matrix(), atol=1e-12)
-            centre = g.centre + [0.01, 0, 0]
             np.testing.assert_allclose(S[:3, :3] @ centre + S[:3, 3], T[:3, :3] @ centre + T[:3, 3], atol=1e-12)
             np.testing.assert_allclose(turned(S, centre, axis, -deg), T, atol=1e-12)
 
@@ -102,7 +102,7 @@ def test_the_map_agreement_is_the_soft_iou_of_map_and_silhouette():
     doubled[:, :320] = np.maximum(doubled[:, :320], doubled[:, 320:])  # the map wider than the silhouette
     assert map_agreement(doubled, g.vertices, g.faces, K, T) == pytest.approx(s.sum() / doubled.sum())
     behind = T.copy()
-    behind[2, 3] = 0.01  # the 10 cm box reaches behind the camera
+    behind[2, 3] = 0.01  # the box (10 cm across) reaches behind the camera
     assert map_agreement(s, g.vertices, g.faces, K, behind) == -1.0
 
 
