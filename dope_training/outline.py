@@ -19,12 +19,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 from torch import nn
 
 from dope_training.backbone import BLOCKS, FINE, LiteTrunk, load_pretrained
 from dope_training.refine_rgb import RgbRefineParams, refine_rgb
-from dope_training.zoom import IMAGENET_MEAN, IMAGENET_STD, ZoomGeometry, in_front, zoom_crop, zoom_window
+from dope_training.zoom import IMAGENET_MEAN, IMAGENET_STD, ZoomGeometry, in_front, moved, zoom_crop, zoom_window
 from pegasus_gen.render.silhouette import mesh_coverage, mesh_silhouette
 
 LOOKS = 2
@@ -85,40 +84,35 @@ def outline_target(T_true: np.ndarray, visible: np.ndarray, A: np.ndarray, K_cro
     return np.minimum(cover, seen).astype(np.float32)
 
 
-def turned(T: np.ndarray, centre: np.ndarray, axis: int, deg: float) -> np.ndarray:
-    """T [4, 4] (m) turned ``deg`` degrees about the camera's axis ``axis`` (0 x, 1 y, 2 z) through the model point
-    ``centre`` [3] (m, model frame), which stays where it was."""
-    R = Rotation.from_rotvec(np.deg2rad(deg) * np.eye(3)[axis]).as_matrix()
-    out = T.copy()
-    out[:3, :3] = R @ T[:3, :3]
-    out[:3, 3] = T[:3, :3] @ centre + T[:3, 3] - out[:3, :3] @ centre
-    return out
+def turn_offset(axis: int, deg: float) -> np.ndarray:
+    """``zoom.moved``'s offset [6] that turns a pose ``deg`` degrees about the camera's axis ``axis`` (0 x, 1 y,
+    2 z) through the model box's centre, which stays where it was."""
+    return np.r_[0.0, 0.0, 0.0, np.deg2rad(deg) * np.eye(3)[axis]]
 
 
-def map_agreement(probability: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
-                  T: np.ndarray) -> float:
-    """How well the model (vertices [V, 3] m, faces [F, 3]) at T [4, 4] agrees with ``probability`` [H, W] (0..1; K
-    [3, 3]): the soft IoU sum(p s) / sum(p + s - p s) of the map p and the silhouette s (0/1), in [0, 1]; -1 when part
-    of the model lies at or behind the camera plane."""
-    if ((vertices @ T[:3, :3].T)[:, 2] + T[2, 3]).min() <= 1e-3:
+def map_agreement(probability: np.ndarray, g: ZoomGeometry, K: np.ndarray, T: np.ndarray) -> float:
+    """How well the model ``g`` at T [4, 4] agrees with ``probability`` [H, W] (0..1; K [3, 3]): the soft IoU
+    sum(p s) / sum(p + s - p s) of the map p and the silhouette s (0/1), in [0, 1]; -1 when the model is not wholly
+    in front of the camera (``in_front``)."""
+    if not in_front(T, g):
         return -1.0
     height, width = probability.shape
-    s = mesh_silhouette(vertices, faces, K, T, width, height).astype(np.float32)
+    s = mesh_silhouette(g.vertices, g.faces, K, T, width, height).astype(np.float32)
     p = np.asarray(probability, np.float32)
     return float((p * s).sum() / max(float((p + s - p * s).sum()), 1e-6))
 
 
-def fit_from_starts(image: np.ndarray, K: np.ndarray, T: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-                    centre: np.ndarray, probability: np.ndarray,
+def fit_from_starts(image: np.ndarray, K: np.ndarray, T: np.ndarray, g: ZoomGeometry, probability: np.ndarray,
                     turns_deg: tuple[float, ...] = START_TURNS_DEG) -> np.ndarray:
-    """T [4, 4] fitted to ``probability`` [H, W] (``refine_rgb``'s arguments) from T itself and from T turned
-    +-each of ``turns_deg`` about the camera's x and y axes through ``centre`` [3] (``turned``): the fit with the
-    best ``map_agreement``, the first on a tie."""
-    starts = [T] + [turned(T, centre, axis, sign * deg) for axis in (0, 1) for sign in (-1, 1) for deg in turns_deg]
-    fits = [refine_rgb(image, K, S, vertices, faces, FIT, probability=probability).T for S in starts]
+    """T [4, 4] of the model ``g`` fitted to ``probability`` [H, W] (``refine_rgb``'s) in ``image`` (K [3, 3]) from T
+    itself and from T turned +-each of ``turns_deg`` about the camera's x and y axes through the box centre
+    (``turn_offset``): the fit with the best ``map_agreement``, the first on a tie."""
+    starts = [T] + [moved(T, K, g, turn_offset(axis, sign * deg))
+                    for axis in (0, 1) for sign in (-1, 1) for deg in turns_deg]
+    fits = [refine_rgb(image, K, S, g.vertices, g.faces, FIT, probability=probability).T for S in starts]
     if len(fits) == 1:
         return fits[0]
-    return fits[int(np.argmax([map_agreement(probability, vertices, faces, K, F) for F in fits]))]
+    return fits[int(np.argmax([map_agreement(probability, g, K, F) for F in fits]))]
 
 
 class OutlineRefiner:
@@ -149,8 +143,7 @@ class OutlineRefiner:
         for look in range(iterations):
             if not in_front(T, g):
                 break
-            T = fit_from_starts(image, K, T, g.vertices, g.faces, g.centre, self.probability(image, K, T),
-                                self.turns_deg if look == 0 else ())
+            T = fit_from_starts(image, K, T, g, self.probability(image, K, T), self.turns_deg if look == 0 else ())
         return T
 
 

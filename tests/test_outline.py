@@ -4,6 +4,7 @@ DOPE's poses, alone or after the offsets look (``DopeModel``, ``pegasus infer --
 trained on a few frames brings estimates back, and options that are the offsets look's are refused."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -20,10 +21,10 @@ from dope_training.outline import (
     fit_from_starts,
     map_agreement,
     outline_target,
-    turned,
+    turn_offset,
 )
 from dope_training.refine_rgb import refine_rgb
-from dope_training.zoom import ZoomGeometry, zoom_window
+from dope_training.zoom import ZoomGeometry, moved, zoom_window
 from dope_training.zoom_config import ZoomConfig
 from dope_training.zoom_train import train_zoom
 from pegasus_gen.cli.main import main
@@ -81,29 +82,28 @@ def _rotation_error_deg(A: np.ndarray, B: np.ndarray) -> float:
 
 
 def test_a_turned_start_turns_about_the_camera_axis_and_keeps_the_centre_in_place():
-    g, T = _box(), _pose(0.8)
-    centre = g.centre + [0.01, 0, 0]
+    g, T = replace(_box(), centre=np.array([0.01, 0.0, 0.0])), _pose(0.8)  # the centre off the model's origin
     for axis in range(3):
         for deg in (-30.0, 12.5):
-            S = turned(T, centre, axis, deg)
+            S = moved(T, K, g, turn_offset(axis, deg))
             np.testing.assert_allclose(S[:3, :3] @ T[:3, :3].T,
                                        Rotation.from_rotvec(np.radians(deg) * np.eye(3)[axis]).as_matrix(), atol=1e-12)
-            np.testing.assert_allclose(S[:3, :3] @ centre + S[:3, 3], T[:3, :3] @ centre + T[:3, 3], atol=1e-12)
-            np.testing.assert_allclose(turned(S, centre, axis, -deg), T, atol=1e-12)
+            np.testing.assert_allclose(S[:3, :3] @ g.centre + S[:3, 3], T[:3, :3] @ g.centre + T[:3, 3], atol=1e-12)
+            np.testing.assert_allclose(moved(S, K, g, turn_offset(axis, -deg)), T, atol=1e-12)
 
 
 def test_the_map_agreement_is_the_soft_iou_of_map_and_silhouette():
     g, T = _box(), _pose(0.8)
     s = mesh_silhouette(g.vertices, g.faces, K, T, 640, 480).astype(np.float32)
-    assert map_agreement(s, g.vertices, g.faces, K, T) == pytest.approx(1.0)
-    assert map_agreement(0.5 * s, g.vertices, g.faces, K, T) == pytest.approx(0.5)  # sum 0.5 n over n
-    assert map_agreement(np.zeros_like(s), g.vertices, g.faces, K, T) == 0.0
+    assert map_agreement(s, g, K, T) == pytest.approx(1.0)
+    assert map_agreement(0.5 * s, g, K, T) == pytest.approx(0.5)  # sum 0.5 n over n
+    assert map_agreement(np.zeros_like(s), g, K, T) == 0.0
     doubled = s.copy()
     doubled[:, :320] = np.maximum(doubled[:, :320], doubled[:, 320:])  # the map wider than the silhouette
-    assert map_agreement(doubled, g.vertices, g.faces, K, T) == pytest.approx(s.sum() / doubled.sum())
+    assert map_agreement(doubled, g, K, T) == pytest.approx(s.sum() / doubled.sum())
     behind = T.copy()
     behind[2, 3] = 0.01  # the box (10 cm across) reaches behind the camera
-    assert map_agreement(s, g.vertices, g.faces, K, behind) == -1.0
+    assert map_agreement(s, g, K, behind) == -1.0
 
 
 def test_the_fit_from_several_starts_comes_back_from_a_turned_estimate():
@@ -112,14 +112,13 @@ def test_the_fit_from_several_starts_comes_back_from_a_turned_estimate():
     blank = np.full((480, 640, 3), 128, np.uint8)
     for axis in (0, 1):
         for deg in (-30.0, -20.0, 20.0, 30.0):
-            start = turned(truth, g.centre, axis, deg)
-            one = fit_from_starts(blank, K, start, g.vertices, g.faces, g.centre, probability, ())
+            start = moved(truth, K, g, turn_offset(axis, deg))
+            one = fit_from_starts(blank, K, start, g, probability, ())
             np.testing.assert_allclose(one, refine_rgb(blank, K, start, g.vertices, g.faces, FIT,
                                                        probability=probability).T, atol=1e-7)  # BLAS: 2e-9 seen
-            many = fit_from_starts(blank, K, start, g.vertices, g.faces, g.centre, probability)
+            many = fit_from_starts(blank, K, start, g, probability)
             assert _rotation_error_deg(many, truth) < 3.0, (axis, deg)  # measured 0.5-1.3
-            assert map_agreement(probability, g.vertices, g.faces, K, many) >= \
-                map_agreement(probability, g.vertices, g.faces, K, one)
+            assert map_agreement(probability, g, K, many) >= map_agreement(probability, g, K, one)
             if (axis, deg) == (0, -30.0):  # from one start the fit stops 21.6 degrees off
                 assert _rotation_error_deg(one, truth) > 10.0
 
@@ -138,13 +137,13 @@ class _TrueMapRefiner(OutlineRefiner):
 def test_the_outline_look_fits_from_several_starts_first_then_from_one():
     g, truth = _box(), _pose(0.8)
     blank = np.full((480, 640, 3), 128, np.uint8)
-    start = turned(truth, g.centre, 0, -30.0)
+    start = moved(truth, K, g, turn_offset(0, -30.0))
     several, one = _TrueMapRefiner(g, truth, (15.0, 30.0)), _TrueMapRefiner(g, truth, ())
     assert _rotation_error_deg(several.refine(blank, K, start), truth) < 3.0
     assert _rotation_error_deg(one.refine(blank, K, start), truth) > 10.0
-    first = fit_from_starts(blank, K, start, g.vertices, g.faces, g.centre, several.map, (15.0, 30.0))
-    np.testing.assert_allclose(several.refine(blank, K, start), fit_from_starts(
-        blank, K, first, g.vertices, g.faces, g.centre, several.map, ()), atol=1e-7)
+    first = fit_from_starts(blank, K, start, g, several.map, (15.0, 30.0))
+    np.testing.assert_allclose(several.refine(blank, K, start), fit_from_starts(blank, K, first, g, several.map, ()),
+                               atol=1e-7)
 
 
 def test_the_target_is_the_true_silhouette_where_the_instance_is_seen():
